@@ -1,0 +1,47 @@
+# panovocc — two commands for a new user: `make demo` and `make test`.
+SHELL := /bin/bash
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
+DEMO := work/demo
+export PYOPENGL_PLATFORM ?= osmesa
+
+.PHONY: setup demo test bench clean help
+
+help:
+	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
+	@echo "make test   set up .venv, then run the test suite"
+	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
+
+# Debian libraries (open3d: libgl1 libegl1 libusb-1.0-0 libgomp1; headless pyrender: libosmesa6),
+# installed only when missing and only when running as root.
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@missing=""; for p in $(DEB_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ]; then echo "installing Debian packages:$$missing"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null) \
+	      || { echo "apt-get failed for:$$missing" >&2; exit 1; }; \
+	  else echo "warning: missing Debian packages:$$missing (run as root or install them)" >&2; fi; \
+	fi
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade pip 2>/dev/null || true
+	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test]' 2>&1 | { grep -v "^WARNING: Location" || true; }
+	# pyrender pins PyOpenGL 3.1.0, whose OSMesa bindings are broken: take a fixed release after it.
+	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check 'PyOpenGL>=3.1.7' 2>&1 | { grep -v -e "^WARNING: Location" -e "pyrender" -e "dependency resolver" || true; }
+	touch $(STAMP)
+
+demo: setup
+	$(BIN)/panovocc demo $(DEMO)
+
+test: setup
+	$(BIN)/python -m pytest -q -p no:cacheprovider tests
+
+bench: setup
+	$(BIN)/panovocc bench work/bench
+
+clean:
+	rm -rf work $(VENV) *.egg-info

@@ -1,0 +1,36 @@
+"""The ``panovocc`` command line: thin Typer commands that build a config and call one ``run_*``.
+
+Commands live in one module per area so that each stays small; heavy libraries (open3d, pyrender,
+matplotlib) are imported inside the command that needs them, so ``--help`` is instant.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from ..errors import EXIT_BAD_INPUT, PanovoccError
+from ._app import app
+
+# Importing a module registers its commands on ``app``.
+from . import data_cmds, eval_cmds, map_cmds  # noqa: E402,F401
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: expected failures print one line and exit 2; others keep their traceback."""
+    try:
+        rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
+    except PanovoccError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
+    except click.exceptions.ClickException as e:
+        e.show()
+        sys.exit(e.exit_code)
+    except click.exceptions.Abort:
+        print("aborted", file=sys.stderr)
+        sys.exit(130)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        sys.exit(130)
+    sys.exit(rv if isinstance(rv, int) else 0)

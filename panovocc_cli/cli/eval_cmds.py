@@ -1,0 +1,3 @@
+"""Commands: eval_cmds."""
+
+from ._app import app  # noqa: F401

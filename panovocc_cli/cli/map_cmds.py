@@ -1,0 +1,3 @@
+"""Commands: map_cmds."""
+
+from ._app import app  # noqa: F401

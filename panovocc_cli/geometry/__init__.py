@@ -1,0 +1,1 @@
+"""Pure numpy maths of the shared conventions: ERP camera, voxel lattice, rigid poses."""

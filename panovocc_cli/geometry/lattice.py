@@ -1,0 +1,74 @@
+"""The global voxel lattice: voxel n covers [n h, (n + 1) h) on each axis (CONVENTIONS.md).
+
+Every grid and the mapper share it, so two grids of the same voxel size compare voxel by voxel.
+Keys pack a voxel index (i, j, k) into one int64 (21 bits a signed axis), for hashing and sorting.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import PanovoccError
+
+DEFAULT_VOXEL_SIZE = 0.08
+_BITS = 21
+_OFFSET = 1 << (_BITS - 1)
+_MASK = (1 << _BITS) - 1
+KEY_RANGE = _OFFSET  # |index| must stay below this (about 84 km at 8 cm)
+
+
+def point_to_index(points, voxel_size: float) -> np.ndarray:
+    """Integer voxel index ``(..., 3)`` int64 of points ``(..., 3)`` metres (world frame)."""
+    return np.floor(np.asarray(points, dtype=np.float64) / voxel_size).astype(np.int64)
+
+
+def index_to_center(index, voxel_size: float) -> np.ndarray:
+    """World coordinates ``(..., 3)`` float64 of voxel centres ``(index + 0.5) h``."""
+    return (np.asarray(index, dtype=np.float64) + 0.5) * voxel_size
+
+
+def origin_to_index(origin, voxel_size: float) -> np.ndarray:
+    """Lattice index of a grid origin (the centre of its voxel [0, 0, 0]); checks it lies on the lattice."""
+    o = np.asarray(origin, dtype=np.float64) / voxel_size - 0.5
+    n = np.round(o)
+    if not np.allclose(o, n, atol=1e-4):
+        raise PanovoccError(
+            f"grid origin {np.asarray(origin).tolist()} is not on the global lattice of voxel size {voxel_size} "
+            "(origin / voxel_size - 0.5 must be whole)"
+        )
+    return n.astype(np.int64)
+
+
+def pack_keys(index) -> np.ndarray:
+    """Pack voxel indices ``(n, 3)`` int into ``(n,)`` int64 keys; ordering of keys is x-major."""
+    idx = np.asarray(index, dtype=np.int64)
+    if idx.size and (np.abs(idx).max() >= _OFFSET):
+        raise PanovoccError(f"voxel index out of the lattice's range (|index| < {_OFFSET})")
+    i = (idx[..., 0] + _OFFSET) & _MASK
+    j = (idx[..., 1] + _OFFSET) & _MASK
+    k = (idx[..., 2] + _OFFSET) & _MASK
+    return (i << (2 * _BITS)) | (j << _BITS) | k
+
+
+def unpack_keys(keys) -> np.ndarray:
+    """Inverse of :func:`pack_keys`: ``(n,)`` int64 -> ``(n, 3)`` int64 voxel indices."""
+    k = np.asarray(keys, dtype=np.int64)
+    i = ((k >> (2 * _BITS)) & _MASK) - _OFFSET
+    j = ((k >> _BITS) & _MASK) - _OFFSET
+    z = (k & _MASK) - _OFFSET
+    return np.stack([i, j, z], axis=-1)
+
+
+def bounds_to_grid(lo, hi, voxel_size: float):
+    """Dense grid covering the box [lo, hi] (metres) on the global lattice.
+
+    Returns
+    -------
+    index0 : (3,) int64, lattice index of voxel [0, 0, 0]
+    shape : (3,) int64, number of voxels per axis
+    origin : (3,) float64, centre of voxel [0, 0, 0]
+    """
+    i0 = point_to_index(lo, voxel_size)
+    i1 = point_to_index(hi, voxel_size)
+    shape = (i1 - i0 + 1).astype(np.int64)
+    return i0, shape, index_to_center(i0, voxel_size)

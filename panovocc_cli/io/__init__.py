@@ -1,0 +1,1 @@
+"""One module per on-disk format, each a ``read_*`` / ``write_*`` pair; all writes are atomic."""

@@ -1,0 +1,96 @@
+"""Pins every convention of CONVENTIONS.md: ERP angles and rays, projection round trips, the lattice."""
+
+import numpy as np
+import pytest
+
+from panovocc_cli.errors import PanovoccError
+from panovocc_cli.geometry import erp, lattice
+from panovocc_cli.geometry.poses import check_rigid, look_at, quat_to_rot, rot_to_quat
+
+
+def test_erp_angles_follow_conventions():
+    W, H = 8, 4
+    theta, phi = erp.pixel_to_angles(np.arange(W), np.zeros(W), W, H)
+    assert theta[0] == pytest.approx(0.5 * 2 * np.pi / W - np.pi)
+    assert phi[0] == pytest.approx(np.pi / 2 - 0.5 * np.pi / H)
+    rays = erp.ray_directions(W, H)
+    assert rays.shape == (H, W, 3)
+    assert np.allclose(np.linalg.norm(rays, axis=-1), 1.0)
+    # the centre column boundary (u = W/2 - 0.5, continuous) looks along +z
+    assert np.allclose(erp.angles_to_ray(0.0, 0.0), [0, 0, 1])
+    # moving right turns toward +x; row 0 looks up (-y in OpenCV)
+    assert rays[H // 2, W // 2 + 1, 0] > 0 and rays[0, 0, 1] < 0 and rays[-1, 0, 1] > 0
+    # column 0's left edge looks straight back (theta = -pi)
+    assert np.allclose(erp.angles_to_ray(-np.pi, 0.0), [0, 0, -1], atol=1e-12)
+
+
+def test_project_inverts_ray_directions():
+    W, H = 64, 32
+    rays = erp.ray_directions(W, H)
+    u, v, r = erp.project(rays * 2.5, W, H)
+    vv, uu = np.mgrid[0:H, 0:W]
+    assert np.allclose(u, uu, atol=1e-9) and np.allclose(v, vv, atol=1e-9) and np.allclose(r, 2.5)
+    row, col, _ = erp.project_to_pixel(rays * 3.0, W, H)
+    assert np.array_equal(row, vv) and np.array_equal(col, uu)
+
+
+def test_box_room_depth_closed_form():
+    """A camera at the centre of a 2a x 2b x 2c box: radial depth is min over faces of half-size / |ray_axis|."""
+    W, H = 128, 64
+    half = np.array([2.0, 1.5, 1.25])
+    rays = erp.ray_directions(W, H)
+    with np.errstate(divide="ignore"):
+        t = np.min(half / np.abs(rays), axis=-1)
+    pts = erp.backproject(t, rays)
+    # every point lies on the box boundary
+    assert np.allclose(np.max(np.abs(pts) / half, axis=-1), 1.0)
+    # straight ahead (+z) the depth is the z half-size
+    ahead = erp.angles_to_ray(0.0, 0.0)
+    assert np.isclose(np.min(half[ahead != 0] / np.abs(ahead[ahead != 0])), half[2])
+
+
+def test_local_frames_orthonormal_and_aligned():
+    th, ph = np.array([0.3, -2.0]), np.array([0.1, 1.2])
+    E = erp.local_frames(th, ph)
+    for e in E:
+        assert np.allclose(e.T @ e, np.eye(3), atol=1e-12)
+    assert np.allclose(E[..., 2], erp.angles_to_ray(th, ph))
+    d = 1e-6
+    dth = (erp.angles_to_ray(th + d, ph) - erp.angles_to_ray(th, ph)) / d
+    assert np.allclose(dth / np.linalg.norm(dth, axis=-1, keepdims=True), E[..., 0], atol=1e-5)
+
+
+def test_erp_size_checks():
+    with pytest.raises(PanovoccError):
+        erp.check_erp_size(1023)
+    with pytest.raises(PanovoccError):
+        erp.check_erp_size(1024, 500)
+    assert erp.check_erp_size(1024) == (1024, 512)
+
+
+def test_lattice_index_center_and_keys():
+    h = 0.08
+    pts = np.array([[0.0, 0.0, 0.0], [0.079999, -0.0001, 1.0], [-3.2, 5.1, 2.4]])
+    idx = lattice.point_to_index(pts, h)
+    assert idx.tolist()[0] == [0, 0, 0] and idx.tolist()[1][:2] == [0, -1]
+    c = lattice.index_to_center(idx, h)
+    assert np.all(np.abs(c - pts) <= h / 2 + 1e-9)
+    rng = np.random.default_rng(0)
+    many = rng.integers(-100000, 100000, size=(1000, 3))
+    assert np.array_equal(lattice.unpack_keys(lattice.pack_keys(many)), many)
+    o = lattice.index_to_center([3, -2, 7], h)
+    assert lattice.origin_to_index(o, h).tolist() == [3, -2, 7]
+    with pytest.raises(PanovoccError):
+        lattice.origin_to_index([0.0, 0.0, 0.0], h)  # a corner, not a centre
+
+
+def test_poses_and_quaternions():
+    T = look_at([1.0, 2.0, 1.5], [1.0, 0.0, 0.0])
+    check_rigid(T)
+    assert np.allclose(T[:3, 2], [1, 0, 0]) and np.allclose(T[:3, 1], [0, 0, -1])  # y down = -Z world
+    R = T[:3, :3]
+    assert np.allclose(quat_to_rot(rot_to_quat(R)), R)
+    bad = T.copy()
+    bad[:3, :3] *= 1.1
+    with pytest.raises(PanovoccError, match="not rigid"):
+        check_rigid(bad)
