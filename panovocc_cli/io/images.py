@@ -20,6 +20,36 @@ def _cv2():
     return cv2
 
 
+def read_exr(path: str | Path) -> np.ndarray:
+    """First channel of an OpenEXR file as (H, W) float32 (Holo360D's depth form: metres).
+
+    Channels are tried in the order Z, R, Y, then the first one stored.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    try:
+        with OpenEXR.File(str(path)) as f:
+            chans = f.channels()
+            name = next((c for c in ("Z", "R", "Y", "depth") if c in chans), None) or sorted(chans)[0]
+            arr = np.asarray(chans[name].pixels)
+    except Exception as e:  # OpenEXR raises plain exceptions on corrupt files
+        raise PanovoccError(f"cannot decode EXR ({e})", path) from None
+    if arr.ndim == 3:
+        arr = arr[..., 0]
+    return arr.astype(np.float32)
+
+
+def write_exr(path: str | Path, depth: np.ndarray) -> None:
+    """Atomically write (H, W) float32 as a one-channel (Z) OpenEXR file."""
+    import OpenEXR
+
+    with atomic_path(path, suffix=".exr") as tmp:
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        with OpenEXR.File(header, {"Z": np.ascontiguousarray(depth, dtype=np.float32)}) as f:
+            f.write(str(tmp))
+
+
 def read_image(path: str | Path, flags: str = "color") -> np.ndarray:
     """Read an image file.
 
@@ -32,6 +62,8 @@ def read_image(path: str | Path, flags: str = "color") -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise PanovoccError("file not found", path)
+    if path.suffix.lower() == ".exr":
+        return read_exr(path)
     flag = cv2.IMREAD_COLOR if flags == "color" else cv2.IMREAD_UNCHANGED
     img = cv2.imread(str(path), flag)
     if img is None:
