@@ -1,0 +1,113 @@
+"""Per-frame contributors: pure functions from one frame (and its pose) to a sparse :class:`Delta`.
+
+The mapper runs a list of contributors on every frame and merges their deltas into the one delta it
+stores and adds to the memory. The geometry contributor (here) produces A, N, F, O; the semantic
+stage plugs in a contributor of its own channels (E, S, rgb_sum, normal_sum, count) the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from ..errors import PanovoccError
+from .freespace import carve
+from .memory import FIXED_SCALE, Delta
+from .psvf import lift_kernels, splat
+
+MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
+
+
+@dataclass(frozen=True)
+class GeometryParams:
+    """Parameters of the geometry contributor (defaults and reasons: docs/mapping.md)."""
+
+    voxel_size: float = 0.08  # metres
+    stride: int = 4  # pixels between samples of the kernel lift
+    kernel: str = "psvf"  # "psvf" or "point"
+    alpha: float = 0.01  # radial kernel scale: alpha * r + beta (dimensionless)
+    beta: float = 0.02  # metres
+    kappa: float = 2.0  # Mahalanobis truncation radius
+    w_pole: float = 0.5  # latitude weight at the poles (1 at the equator)
+    r_half: float = 8.0  # metres; range weight 1 / (1 + r / r_half)
+    eps_abs: float = 0.07  # metres; free-space margin eps(r) = eps_abs + eps_rel r
+    eps_rel: float = 0.01
+    stable_k: float = 2.0  # neighbour depths within stable_k * eps(r) count as stable
+    min_range: float = 0.1  # metres; depths and voxels nearer than this are ignored
+    max_range: float = 12.0  # metres; depths and voxels farther than this are ignored
+
+
+@nb.njit(cache=True)
+def _extract(A, F, O, lo, scale):
+    nx, ny, nz = A.shape
+    cnt = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if O[i, j, k] != 0 or np.rint(A[i, j, k] * scale) != 0:
+                    cnt += 1
+    keys = np.empty(cnt, np.int64)
+    out = np.zeros((cnt, 4), np.int64)
+    off = 1 << 20
+    n = 0
+    for i in range(nx):
+        ki = (i + lo[0] + off) << 42
+        for j in range(ny):
+            kj = ki | ((j + lo[1] + off) << 21)
+            for k in range(nz):
+                a = np.int64(np.rint(A[i, j, k] * scale))
+                if O[i, j, k] != 0 or a != 0:
+                    keys[n] = kj | (k + lo[2] + off)
+                    out[n, 0] = a
+                    out[n, 1] = 1 if a > 0 else 0
+                    out[n, 2] = F[i, j, k]
+                    out[n, 3] = O[i, j, k]
+                    n += 1
+    return keys, out
+
+
+def frame_box(x_world, half, kappa, cam_pos, voxel_size: float, max_range: float):
+    """Lattice box (lo, shape) covering the camera and every kernel's bounding box, cut at max_range."""
+    h = voxel_size
+    if len(x_world):
+        pmin = np.minimum((x_world - kappa * half).min(axis=0), cam_pos)
+        pmax = np.maximum((x_world + kappa * half).max(axis=0), cam_pos)
+    else:
+        pmin = pmax = cam_pos
+    pmin = np.maximum(pmin, cam_pos - max_range)
+    pmax = np.minimum(pmax, cam_pos + max_range)
+    lo = np.floor(pmin / h).astype(np.int64) - 1
+    hi = np.floor(pmax / h).astype(np.int64) + 1
+    return lo, hi - lo + 1
+
+
+def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams) -> Delta:
+    """One ERP frame's geometric delta (A fixed point, N, F, O) on the global lattice.
+
+    Parameters
+    ----------
+    depth : (H, W) float32, metres, radial, 0 = invalid
+    T_world_cam : (4, 4) float64
+
+    Returns
+    -------
+    Delta with channels A (fixed point, FIXED_SCALE), N (0/1), F (0/1), O (0/1)
+    """
+    if p.kernel not in ("psvf", "point"):
+        raise PanovoccError(f"unknown kernel {p.kernel!r} (expected psvf or point)")
+    c_norm = 1.0 / (2.0 * np.pi) if p.kernel == "psvf" else 1.0
+    x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
+                                 p.w_pole, p.r_half, c_norm)
+    if p.kernel == "point":
+        half = np.full_like(half, p.voxel_size)
+    lo, shape = frame_box(x, half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
+    if int(np.prod(shape)) > MAX_FRAME_VOXELS:
+        raise PanovoccError(f"a frame spans {shape.tolist()} voxels (over {MAX_FRAME_VOXELS}); "
+                            "lower --max-range or raise --voxel-size")
+    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, p.kernel)
+    F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
+                 p.min_range, p.max_range)
+    keys, rows = _extract(A, F, O, lo, float(FIXED_SCALE))
+    return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})
