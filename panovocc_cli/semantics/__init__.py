@@ -1,0 +1,9 @@
+"""Semantic side of the mapper: segmenters, per-frame semantic evidence and GSC consolidation.
+
+* :mod:`.segmenter` — the :class:`Segmenter` interface, :func:`make_segmenter`, :func:`parse_vocab`;
+* :mod:`.simulated` — the seeded ground-truth-based open-vocabulary segmenter (the default);
+* :mod:`.precomputed` — scores another model wrote (``precomputed:DIR``), with :func:`write_precomputed`;
+* :mod:`.evidence` — softmax, weights eta, ERP normals and the per-frame sparse semantic delta;
+* :mod:`.gsc` — Geometry-Aware Semantic Consolidation and the bounded nearest-evidence transfer;
+* :mod:`.metrics2d` — per-frame 2D mIoU of a segmenter against ground truth.
+"""
