@@ -1,3 +1,150 @@
-"""Commands: eval_cmds."""
+"""Commands: eval, coverage, show, convert (replicaocc / to-replicaocc).
 
-from ._app import app  # noqa: F401
+Thin wrappers: each builds a config and calls one ``run_*`` of :mod:`panovocc_cli.evaluation.run`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import typer
+
+from ..errors import PanovoccError
+from ._app import app
+
+convert_app = typer.Typer(help="Convert ground truth between the ReplicaOcc/FreeOcc .pkl form and grid .npz.",
+                          no_args_is_help=True, context_settings={"help_option_names": ["-h", "--help"]})
+app.add_typer(convert_app, name="convert")
+
+
+@app.command("eval", context_settings={"ignore_unknown_options": True})
+def eval_cmd(
+    paths: Optional[List[str]] = typer.Argument(
+        None, help="PRED.npz GT.npz, then any number of '--pair PRED.npz GT.npz' (all pairs are pooled).",
+        show_default=False, metavar="PRED GT [--pair PRED GT]..."),
+    pairs: Optional[Path] = typer.Option(None, "--pairs", help="CSV listing pairs: pred,gt per line (relative to it)."),
+    classes: str = typer.Option("eval8", "--classes",
+                                help="Class set for mIoU: eval8 | open4 | eval12 | all | comma list (a,b,c)."),
+    mask: str = typer.Option("freeocc", "--mask", help="Mask for the --json top level: freeocc (headline) | observed."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object (scores in percent) instead of a table."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for scores.csv/.md/.tex, counts.csv, scores.json."),
+) -> None:
+    """Score predictions against ground truth (FreeOcc protocol: IoU, per-class IoU, mIoU, percent)."""
+    from ..evaluation.run import EvalConfig, eval_json, format_report, read_pairs_csv, run_eval
+
+    all_pairs = parse_pair_tokens(paths or [])
+    if pairs is not None:
+        all_pairs += read_pairs_csv(pairs)
+    cfg = EvalConfig(pairs=all_pairs, classes=classes, mask=mask.strip().lower(), out_dir=out)
+    res = run_eval(cfg)
+    if as_json:
+        typer.echo(json.dumps(eval_json(res, cfg.mask)))
+    else:
+        typer.echo(format_report(res))
+        if out is not None:
+            typer.echo(f"wrote scores.csv, scores.md, scores.tex, counts.csv, scores.json to {out}")
+
+
+def parse_pair_tokens(tokens: list[str]) -> list[tuple[Path, Path]]:
+    """``PRED GT [--pair PRED GT]...`` -> pairs (``--pair`` is parsed here: Typer has no repeatable 2-value option)."""
+    out, loose, k = [], [], 0
+    while k < len(tokens):
+        t = tokens[k]
+        if t == "--pair":
+            if k + 2 >= len(tokens) or any(x.startswith("-") for x in tokens[k + 1:k + 3]):
+                raise PanovoccError("--pair needs two paths: --pair PRED.npz GT.npz")
+            out.append((Path(tokens[k + 1]), Path(tokens[k + 2])))
+            k += 3
+        elif t.startswith("-"):
+            raise PanovoccError(f"unknown option {t!r} (see panovocc eval --help)")
+        else:
+            loose.append(Path(t))
+            k += 1
+    if len(loose) % 2:
+        raise PanovoccError("give both PRED and GT (paths come in pairs)")
+    return [(loose[i], loose[i + 1]) for i in range(0, len(loose), 2)] + out
+
+
+@app.command("coverage")
+def coverage_cmd(
+    seq: Path = typer.Argument(..., help="Panoramic (ERP) sequence folder: depth/ and poses.txt are used."),
+    gt: Path = typer.Argument(..., help="Ground-truth grid .npz (its occupied voxels are the denominator)."),
+    out: Path = typer.Option(..., "--out", help="Output folder for coverage.csv, coverage.png, config.json."),
+    fov_deg: float = typer.Option(90.0, "--fov-deg", help="Perspective camera horizontal field of view, degrees."),
+    vfov_deg: Optional[float] = typer.Option(
+        None, "--vfov-deg", help="Perspective vertical field of view, degrees (default: from --aspect)."),
+    aspect: float = typer.Option(1200.0 / 680.0, "--aspect",
+                                 help="Perspective image width/height, used when --vfov-deg is not given "
+                                      "(default: Replica's 1200x680)."),
+    every: int = typer.Option(1, "--every", help="Use every K-th frame (the last frame is always used)."),
+    tol_m: float = typer.Option(0.01, "--tol-m", help="Metres: a depth point this close to a voxel face also "
+                                                      "observes the voxel across it."),
+) -> None:
+    """Fraction of GT occupied voxels observed so far, panorama vs. forward perspective camera (Fig. 5)."""
+    from ..evaluation.run import CoverageConfig, run_coverage
+
+    cfg = CoverageConfig(seq=seq, gt=gt, out_dir=out, hfov_deg=fov_deg, vfov_deg=vfov_deg, aspect=aspect,
+                         every=every, tol_m=tol_m)
+    r = run_coverage(cfg)
+    n = len(r["frame"])
+    typer.echo(f"coverage of {int(r['total'])} GT occupied voxels over {n} frames "
+               f"(perspective {fov_deg:g} x {float(r['vfov_deg']):.1f} deg):")
+    typer.echo(f"{'frame':>8}{'panoramic':>12}{'perspective':>13}")
+    for k in sorted({0, (n - 1) // 2, n - 1}):
+        typer.echo(f"{int(r['frame'][k]):>8}{100 * r['panoramic'][k]:>11.2f}%{100 * r['perspective'][k]:>12.2f}%")
+    typer.echo(f"wrote {out / 'coverage.csv'} and {out / 'coverage.png'}")
+
+
+@app.command("show")
+def show_cmd(
+    paths: List[Path] = typer.Argument(..., help="GRID.npz [GRID2.npz ...] OUT.png: grids side by side, then the PNG."),
+    cut_top: int = typer.Option(0, "--cut-top", help="Remove the top K voxel layers (to look into rooms)."),
+    titles: Optional[str] = typer.Option(None, "--titles", help="Comma-separated panel titles, one per grid."),
+    width_px: int = typer.Option(1600, "--width-px", help="PNG width in pixels."),
+) -> None:
+    """Render semantic occupancy grids as a picture (paper class colours, legend of classes present)."""
+    from ..evaluation.run import ShowConfig, run_show
+
+    if len(paths) < 2:
+        raise PanovoccError("expected GRID.npz [GRID2.npz ...] OUT.png")
+    cfg = ShowConfig(grids=list(paths[:-1]), out_png=paths[-1], cut_top=cut_top,
+                     titles=[t.strip() for t in titles.split(",")] if titles else None, width_px=width_px)
+    h, w = run_show(cfg)
+    typer.echo(f"wrote {cfg.out_png} ({w}x{h} px, {len(cfg.grids)} panel{'s' if len(cfg.grids) > 1 else ''})")
+
+
+@convert_app.command("replicaocc")
+def convert_replicaocc_cmd(
+    pkl: Path = typer.Argument(..., help="ReplicaOcc/FreeOcc global_occ_package/<scene>.pkl."),
+    out_npz: Path = typer.Argument(..., help="Output grid .npz."),
+    class_names: Optional[str] = typer.Option(
+        None, "--class-names", help="Names of the label ids: a text file (one a line) or a comma list; ids 1.. "
+                                    "unless the first name is empty/free/unlabeled (then ids 0..)."),
+    voxel_size: Optional[float] = typer.Option(
+        None, "--voxel-size", help="Voxel edge, metres (default: the file's voxel_size key, else 0.08)."),
+    tol_m: Optional[float] = typer.Option(None, "--tol-m", help="Metres a centre may be off the lattice "
+                                                                "(default: a quarter voxel)."),
+    allow_shift: bool = typer.Option(False, "--allow-shift", help="Translate an off-lattice grid onto the lattice."),
+) -> None:
+    """ReplicaOcc .pkl (global_labels, global_pts, scene_dim) -> grid .npz."""
+    from ..evaluation.run import ConvertReplicaOccConfig, run_convert_replicaocc
+
+    g, shift = run_convert_replicaocc(ConvertReplicaOccConfig(pkl, out_npz, class_names, voxel_size, tol_m,
+                                                              allow_shift))
+    occ = int(((g.labels != 0) & (g.labels != 255)).sum())
+    typer.echo(f"wrote {out_npz}: {tuple(g.labels.shape)} voxels of {g.voxel_size:g} m, {occ} occupied, "
+               f"{len(g.class_names) - 1} classes" + (f", shifted by {shift.round(4).tolist()} m" if shift.any() else ""))
+
+
+@convert_app.command("to-replicaocc")
+def convert_to_replicaocc_cmd(
+    grid: Path = typer.Argument(..., help="Grid .npz."),
+    out_pkl: Path = typer.Argument(..., help="Output .pkl in the ReplicaOcc form."),
+) -> None:
+    """Grid .npz -> ReplicaOcc .pkl (every voxel; class_names and voxel_size keys added)."""
+    from ..evaluation.run import run_convert_to_replicaocc
+
+    g = run_convert_to_replicaocc(grid, out_pkl)
+    typer.echo(f"wrote {out_pkl}: {g.labels.size} voxels, scene_dim {list(g.labels.shape)}")
