@@ -1,0 +1,313 @@
+"""Geometry-Aware Semantic Consolidation (GSC, paper Sec. "Geometry-Aware Semantic Consolidation").
+
+Vertices are the occupied voxels, edges their 6-neighbour pairs (found by sorted keys and
+``searchsorted``). The affinity of an edge is ``W_ij = k_g * k_n * k_t * k_c``:
+
+* ``k_g = exp(-|g_i - g_j| / s_g)``: consistency of the signed PSVF scores ``g``;
+* ``k_n = max(0, n_i . n_j) ** normal_power``: aligned surface normals (normals face the camera that saw
+  them, so the two sides of a thin wall, or a floor and a wall meeting at a crease, do not connect);
+* ``k_t = exp(-((n_i . e_ij)^2 + (n_j . e_ij)^2) / (2 s_t))``: suppresses edges along the normal
+  (``e_ij`` the unit edge direction), so labels propagate within the tangent plane, not between stacked
+  surfaces;
+* ``k_c = exp(-||c_i - c_j||^2 / (2 s_c^2))``: similar mean colours (0..255).
+
+A voxel without a normal (zero vector) or without a colour (NaN) is neutral in that term (factor 1).
+Rows are normalised (``W_bar = D^-1 W``) and the anchored diffusion
+
+    q^(k+1)_i = (rho_i p_i + lambda_s sum_j W_bar_ij q^(k)_j) / (rho_i + lambda_s sum_j W_bar_ij),  q^(0) = p
+
+runs a fixed ``iterations`` times in float32 with a scipy CSR matrix. The anchor
+``rho_i = (1 - H(p_i) / log C) * S_i / (S_i + S0)`` is strong for confident, well-observed voxels and 0
+for voxels without evidence (S = 0), which therefore take their neighbours' distribution.
+
+Output (:func:`consolidate`): the argmax class of each occupied voxel with evidence; a voxel without
+direct evidence is labelled only when an evidence voxel lies within ``max_dist_vox`` (the bounded
+nearest-evidence transfer; with GSC it takes its diffused distribution when diffusion reached it),
+otherwise -1 (exported as 254, occupied with no class). ``use_gsc=False`` is the ``--no-gsc`` ablation:
+raw argmax plus the same transfer, so both variants label exactly the same voxels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import PanovoccError
+from ..geometry.lattice import pack_keys
+
+UNKNOWN = -1
+
+
+@dataclass(frozen=True)
+class GSCParams:
+    """GSC parameters (defaults documented in docs/semantics.md)."""
+
+    s_g: float = 0.5  # PSVF score difference scale (score units, e.g. truncation-normalised)
+    normal_power: float = 2.0
+    s_t: float = 0.1  # (n . e)^2 scale: an edge along the normal gets exp(-10)
+    s_c: float = 30.0  # colour scale, 0..255 units
+    lambda_s: float = 1.0  # spatial regularisation strength
+    S0: float = 2.0  # accumulated weight at which the anchor reaches half strength
+    iterations: int = 10
+    max_dist_vox: float = 2.0  # bound of the nearest-evidence transfer, voxels (Euclidean)
+
+
+def _check_index(occupied_idx) -> np.ndarray:
+    idx = np.asarray(occupied_idx)
+    if idx.ndim != 2 or idx.shape[1] != 3 or not np.issubdtype(idx.dtype, np.integer):
+        raise PanovoccError(f"occupied voxel indices must be (n, 3) integers, got {idx.dtype} {idx.shape}")
+    return idx.astype(np.int64, copy=False)
+
+
+def neighbour_edges(occupied_idx: np.ndarray):
+    """The 6-neighbour edges between occupied voxels, each unordered pair once.
+
+    Parameters
+    ----------
+    occupied_idx : (n, 3) int64, global lattice indices, unique
+
+    Returns
+    -------
+    i, j : (m,) int64, voxel positions with ``occupied_idx[j] == occupied_idx[i] + e_axis``
+    axis : (m,) int64 in {0, 1, 2}
+    """
+    idx = _check_index(occupied_idx)
+    n = idx.shape[0]
+    keys = pack_keys(idx)
+    order = np.argsort(keys, kind="stable")
+    sk = keys[order]
+    if n > 1 and np.any(sk[1:] == sk[:-1]):
+        raise PanovoccError("occupied voxel indices repeat (each voxel must appear once)")
+    sidx = idx[order]
+    ii, jj, aa = [], [], []
+    for a in range(3):
+        step = np.zeros(3, dtype=np.int64)
+        step[a] = 1
+        # Shifting every index along one axis keeps the key order, so the queries are sorted too
+        # (much faster searchsorted than random-order queries).
+        nk = pack_keys(sidx + step)
+        pos = np.minimum(np.searchsorted(sk, nk), max(n - 1, 0))
+        found = sk[pos] == nk if n else np.zeros(0, dtype=bool)
+        src = np.flatnonzero(found)
+        ii.append(order[src])
+        jj.append(order[pos[src]])
+        aa.append(np.full(src.size, a, dtype=np.int64))
+    return np.concatenate(ii), np.concatenate(jj), np.concatenate(aa)
+
+
+def unit_rows(v: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length, float32; zero (or non-finite) rows stay zero."""
+    v = np.nan_to_num(np.asarray(v, dtype=np.float64))
+    nrm = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.where(nrm > 1e-12, v / np.where(nrm > 1e-12, nrm, 1.0), 0.0).astype(np.float32)
+
+
+def edge_affinity(i: np.ndarray, j: np.ndarray, axis: np.ndarray, g: np.ndarray, normals: np.ndarray,
+                  colors: np.ndarray, params: GSCParams = GSCParams()) -> np.ndarray:
+    """Affinity ``W_ij = k_g k_n k_t k_c`` of each edge (see the module docstring).
+
+    Parameters
+    ----------
+    i, j, axis : (m,) int64 edges from :func:`neighbour_edges`
+    g : (n,) float, signed PSVF scores
+    normals : (n, 3) float, mean normals (any length; zero = unknown), world frame
+    colors : (n, 3) float, mean colours 0..255 (NaN = unknown)
+
+    Returns
+    -------
+    w : (m,) float32 in [0, 1]
+    """
+    g = np.asarray(g, dtype=np.float32)
+    nh = unit_rows(normals)
+    col = np.asarray(colors, dtype=np.float32)
+    k_g = np.exp(-np.abs(g[i] - g[j]) / np.float32(params.s_g))
+    ni, nj = nh[i], nh[j]
+    dot = np.einsum("mk,mk->m", ni, nj)
+    has_n = (np.abs(ni).sum(1) > 0) & (np.abs(nj).sum(1) > 0)
+    k_n = np.where(has_n, np.maximum(dot, 0.0) ** np.float32(params.normal_power), 1.0)
+    ai, aj = ni[np.arange(i.size), axis], nj[np.arange(j.size), axis]  # n . e_ij with e_ij = axis unit vector
+    k_t = np.exp(-(ai * ai + aj * aj) / np.float32(2.0 * params.s_t))
+    dc = col[i] - col[j]
+    d2 = np.einsum("mk,mk->m", dc, dc)
+    k_c = np.where(np.isfinite(d2), np.exp(-np.nan_to_num(d2) / np.float32(2.0 * params.s_c ** 2)), 1.0)
+    return (k_g * k_n * k_t * k_c).astype(np.float32)
+
+
+def transition_matrix(n: int, i: np.ndarray, j: np.ndarray, w: np.ndarray):
+    """Row-normalised symmetric affinity matrix ``W_bar`` (n, n) scipy CSR float32.
+
+    Each edge enters in both directions; a row whose affinities are all zero stays zero.
+    """
+    import scipy.sparse as sp
+
+    keep = w > 0
+    i, j, w = i[keep], j[keep], w[keep].astype(np.float32)
+    rows = np.concatenate([i, j])
+    cols = np.concatenate([j, i])
+    vals = np.concatenate([w, w])
+    deg = np.bincount(rows, weights=vals, minlength=n).astype(np.float32)
+    vals = vals / deg[rows]
+    return sp.csr_matrix((vals.astype(np.float32), (rows, cols)), shape=(n, n))
+
+
+def anchor_strength(p: np.ndarray, S: np.ndarray, S0: float = 2.0) -> np.ndarray:
+    """``rho = (1 - H(p) / log C) * S / (S + S0)``, (n,) float32; 0 where ``S <= 0``.
+
+    Parameters
+    ----------
+    p : (n, C) float, unary class distributions (rows of voxels without evidence are ignored)
+    S : (n,) float, accumulated semantic weight
+    """
+    p = np.asarray(p, dtype=np.float32)
+    S = np.asarray(S, dtype=np.float32)
+    c = p.shape[1]
+    if c > 1:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            h = -np.sum(np.where(p > 0, p * np.log(np.where(p > 0, p, 1.0)), 0.0), axis=1)
+        conf = np.clip(1.0 - h / np.log(c), 0.0, 1.0)
+    else:
+        conf = np.ones(p.shape[0], dtype=np.float32)
+    return np.where(S > 0, conf * S / (S + np.float32(S0)), 0.0).astype(np.float32)
+
+
+def unaries(E: np.ndarray, S: np.ndarray, normal_sum: np.ndarray, rgb_sum: np.ndarray, count: np.ndarray):
+    """Per-voxel GSC inputs from accumulated channels.
+
+    Parameters
+    ----------
+    E : (n, C) float, accumulated eta-weighted probabilities; S : (n,) float, accumulated eta
+    normal_sum, rgb_sum : (n, 3) float, plain sums; count : (n,) int, measurements
+
+    Returns
+    -------
+    p : (n, C) float32, ``E / S`` (zero rows where S <= 0)
+    normals : (n, 3) float32, unit mean normals (zero where unknown)
+    colors : (n, 3) float32, mean colours 0..255 (NaN where count == 0)
+    """
+    E = np.asarray(E, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    cnt = np.asarray(count, dtype=np.float64)
+    p = np.where((S > 0)[:, None], E / np.where(S > 0, S, 1.0)[:, None], 0.0).astype(np.float32)
+    colors = np.where((cnt > 0)[:, None], np.asarray(rgb_sum, np.float64) / np.maximum(cnt, 1)[:, None], np.nan)
+    return p, unit_rows(normal_sum), colors.astype(np.float32)
+
+
+def gsc_diffuse(occupied_idx: np.ndarray, p: np.ndarray, S: np.ndarray, g: np.ndarray, normals: np.ndarray,
+                colors: np.ndarray, params: GSCParams = GSCParams()) -> np.ndarray:
+    """Anchored diffusion of the unaries over the occupied-voxel graph.
+
+    Parameters
+    ----------
+    occupied_idx : (n, 3) int64, global lattice indices (unique)
+    p : (n, C) float, unary distributions ``E / S`` (rows with S = 0: no evidence, any values)
+    S : (n,) float, accumulated semantic weight
+    g : (n,) float, signed PSVF scores
+    normals : (n, 3) float, mean normals (zero = unknown), world frame
+    colors : (n, 3) float, mean colours 0..255 (NaN = unknown)
+    params : GSCParams
+
+    Returns
+    -------
+    q : (n, C) float32, consolidated distributions (zero rows: no evidence reached the voxel)
+    """
+    idx = _check_index(occupied_idx)
+    n = idx.shape[0]
+    p = np.asarray(p, dtype=np.float32)
+    S = np.asarray(S, dtype=np.float32)
+    if p.ndim != 2 or p.shape[0] != n or S.shape != (n,) or np.shape(g) != (n,) or np.shape(normals) != (n, 3) \
+            or np.shape(colors) != (n, 3):
+        raise PanovoccError(f"GSC inputs disagree with {n} voxels: p {p.shape}, S {S.shape}, g {np.shape(g)}, "
+                            f"normals {np.shape(normals)}, colors {np.shape(colors)}")
+    has = S > 0
+    p = np.where(has[:, None], p, 0.0).astype(np.float32)
+    if n == 0 or params.iterations <= 0:
+        return p
+    # Work in lattice-key order: neighbours then sit close in memory (fast sparse products).
+    order = np.argsort(pack_keys(idx), kind="stable")
+    q_sorted = _diffuse_sorted(idx[order], p[order], S[order], np.asarray(g)[order], np.asarray(normals)[order],
+                               np.asarray(colors)[order], params)
+    q = np.empty_like(q_sorted)
+    q[order] = q_sorted
+    return q
+
+
+def _diffuse_sorted(idx, p, S, g, normals, colors, params: GSCParams) -> np.ndarray:
+    n = idx.shape[0]
+    i, j, a = neighbour_edges(idx)
+    w = edge_affinity(i, j, a, g, normals, colors, params)
+    Wb = transition_matrix(n, i, j, w)
+    rowsum = np.asarray(Wb.sum(axis=1)).ravel().astype(np.float32)
+    rho = anchor_strength(p, S, params.S0)
+    lam = np.float32(params.lambda_s)
+    denom = rho + lam * rowsum
+    live = denom > 0
+    inv = np.where(live, 1.0 / np.where(live, denom, 1.0), 0.0).astype(np.float32)[:, None]
+    anchor = rho[:, None] * p
+    q = p.copy()
+    for _ in range(int(params.iterations)):
+        nxt = (anchor + lam * (Wb @ q)) * inv
+        q = np.where(live[:, None], nxt, q).astype(np.float32, copy=False)
+    return q
+
+
+def nearest_evidence_transfer(occupied_idx: np.ndarray, labels: np.ndarray, has_evidence: np.ndarray,
+                              max_dist_vox: float = 2.0) -> np.ndarray:
+    """Label voxels without direct semantic support from the nearest voxel with evidence, within a bound.
+
+    Parameters
+    ----------
+    occupied_idx : (n, 3) int64, global lattice indices
+    labels : (n,) int, class index of each voxel (read only where ``has_evidence``)
+    has_evidence : (n,) bool
+    max_dist_vox : float, largest Euclidean distance, in voxels, to take a label from
+
+    Returns
+    -------
+    labels : (n,) int64; voxels without evidence and none within the bound get -1 (unknown)
+    """
+    from scipy.spatial import cKDTree
+
+    idx = _check_index(occupied_idx)
+    lab = np.asarray(labels, dtype=np.int64)
+    has = np.asarray(has_evidence, dtype=bool)
+    if lab.shape != (idx.shape[0],) or has.shape != (idx.shape[0],):
+        raise PanovoccError(f"labels {lab.shape} and has_evidence {has.shape} must be ({idx.shape[0]},)")
+    out = np.where(has, lab, UNKNOWN).astype(np.int64)
+    need = np.flatnonzero(~has)
+    src = np.flatnonzero(has)
+    if need.size == 0 or src.size == 0 or max_dist_vox <= 0:
+        return out
+    tree = cKDTree(idx[src].astype(np.float64), balanced_tree=False, compact_nodes=False)
+    dist, nn = tree.query(idx[need].astype(np.float64), k=1, distance_upper_bound=float(max_dist_vox) + 1e-9)
+    ok = np.isfinite(dist)
+    out[need[ok]] = lab[src[nn[ok]]]
+    return out
+
+
+def consolidate(occupied_idx: np.ndarray, p: np.ndarray, S: np.ndarray, g: np.ndarray, normals: np.ndarray,
+                colors: np.ndarray, *, use_gsc: bool = True, params: GSCParams = GSCParams()) -> np.ndarray:
+    """Class of every occupied voxel: GSC (or raw) argmax plus the bounded nearest-evidence transfer.
+
+    Parameters
+    ----------
+    occupied_idx, p, S, g, normals, colors : as :func:`gsc_diffuse` (see also :func:`unaries`)
+    use_gsc : bool, False for the ``--no-gsc`` ablation (raw argmax of ``p``)
+    params : GSCParams (``max_dist_vox`` bounds the transfer)
+
+    Returns
+    -------
+    labels : (n,) int64, vocabulary index, or -1 = occupied without class (export as 254)
+    """
+    S = np.asarray(S, dtype=np.float32)
+    has = S > 0
+    if use_gsc:
+        q = gsc_diffuse(occupied_idx, p, S, g, normals, colors, params)
+    else:
+        q = np.where(has[:, None], np.asarray(p, dtype=np.float32), 0.0)
+    lab = np.argmax(q, axis=1).astype(np.int64) if q.shape[1] else np.zeros(q.shape[0], np.int64)
+    transferred = nearest_evidence_transfer(occupied_idx, lab, has, params.max_dist_vox)
+    reached = q.sum(axis=1) > 0
+    # Without direct evidence: labelled only within the transfer bound (same set for both variants);
+    # with GSC, the diffused distribution decides where diffusion reached the voxel.
+    return np.where(~has & (transferred >= 0) & reached, lab, transferred)
