@@ -1,3 +1,85 @@
-"""Commands: map_cmds."""
+"""Commands: ``map`` (sequence -> persistent memory + grid), ``revise`` (new poses), ``bench`` (speed)."""
 
-from ._app import app  # noqa: F401
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from ..errors import PanovoccError
+from ._app import app
+
+
+@app.command("map")
+def map_cmd(
+    seq: Optional[Path] = typer.Argument(None, help="Sequence folder (CONVENTIONS.md layout); omit with --resume."),
+    out: Optional[Path] = typer.Argument(None, help="Output folder for the memory, prediction.npz and map.ply."),
+    poses: Optional[Path] = typer.Option(None, help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt."),
+    voxel_size: float = typer.Option(0.08, help="Voxel edge length h, metres."),
+    stride: int = typer.Option(0, help="Pixel stride s of the kernel lift; 0 = auto, max(1, W // 256) (4 at 1024)."),
+    kernel: str = typer.Option("psvf", help="Surface kernel: psvf (anisotropic Gaussian) or point (ablation)."),
+    checkpoint_every: int = typer.Option(25, help="Checkpoint the memory every K frames (0 = only at the end)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the interrupted run in OUT (its config is used)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a map already in OUT."),
+    kappa: float = typer.Option(2.0, help="Mahalanobis truncation radius kappa (dimensionless)."),
+    alpha: float = typer.Option(0.01, help="Radial kernel scale alpha in sigma_r = alpha r + beta (dimensionless)."),
+    beta: float = typer.Option(0.02, help="Radial kernel scale beta, metres."),
+    eps_abs: float = typer.Option(0.07, help="Free-space margin eps_abs in eps(r) = eps_abs + eps_rel r, metres."),
+    eps_rel: float = typer.Option(0.01, help="Free-space margin eps_rel (dimensionless, per metre of range)."),
+    max_range: float = typer.Option(12.0, help="Depths and voxels farther than this are ignored, metres."),
+    lambda_f: float = typer.Option(1.0, help="Weight lambda_f of the free-space ratio in the signed score."),
+    tau_s: float = typer.Option(0.35, help="Strong support threshold tau_s on g (per-frame support units)."),
+    tau_w: float = typer.Option(0.12, help="Weak support threshold tau_w on g."),
+    gamma_f: float = typer.Option(0.35, help="Largest free-space ratio F/O for weak support (0..1)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Map a panoramic RGB-D sequence into a persistent occupancy memory (OUT/) and grid (OUT/prediction.npz)."""
+    from ..mapping.contributors import GeometryParams
+    from ..mapping.export import OccupancyParams
+    from ..mapping.pipeline import MapConfig, run_map
+
+    if resume:
+        target = out if out is not None else seq
+        if target is None or (seq is not None and out is not None):
+            raise PanovoccError("--resume takes only the output folder: panovocc map --resume OUT")
+        summary = run_map(resume_out=target, progress=not quiet)
+    else:
+        if seq is None or out is None:
+            raise PanovoccError("map needs SEQ and OUT (or --resume OUT)")
+        geo = GeometryParams(voxel_size=voxel_size, kernel=kernel, kappa=kappa, alpha=alpha, beta=beta,
+                             eps_abs=eps_abs, eps_rel=eps_rel, max_range=max_range)
+        occ = OccupancyParams(lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w, gamma_f=gamma_f)
+        cfg = MapConfig(seq=str(seq), out=str(out), poses=None if poses is None else str(poses),
+                        checkpoint_every=checkpoint_every, geometry=geo, occupancy=occ, stride=stride)
+        summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
+    typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
+               f"(update {summary['update_ms_per_frame']:.1f} ms): {summary['occupied']} occupied, "
+               f"{summary['free']} free voxels -> {summary['out']}")
+
+
+@app.command()
+def revise(
+    out: Path = typer.Argument(..., help="Output folder of a finished `panovocc map` run."),
+    poses: Path = typer.Argument(..., help="Full pose file (one pose per frame, NICE-SLAM or TUM form)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Re-integrate exactly the frames whose pose changed, and rewrite OUT/prediction.npz and OUT/map.ply."""
+    from ..mapping.pipeline import run_revise
+
+    s = run_revise(out, poses, progress=not quiet)
+    typer.echo(f"revised {s['revised']} of {s['frames']} frames in {s['seconds']:.2f} s: {s['occupied']} occupied, "
+               f"{s['free']} free voxels")
+
+
+@app.command()
+def bench(
+    outdir: Path = typer.Argument(..., help="Working folder (the rendered sequence, the map, bench.json)."),
+    frames: int = typer.Option(20, help="Frames of the benchmark sequence."),
+    width: int = typer.Option(1024, help="ERP width of the benchmark sequence, pixels (height = width / 2)."),
+) -> None:
+    """Mapper speed against Open3D VoxelBlockGrid TSDF fusion (cube faces) on the same frames."""
+    from ..mapping.bench import BenchConfig, run_bench
+
+    r = run_bench(BenchConfig(out=str(outdir), frames=frames, width=width))
+    typer.echo(r["line"])

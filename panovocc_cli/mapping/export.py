@@ -1,0 +1,115 @@
+"""From memory to outputs: the signed score, the three-state grid, and a coloured PLY of occupied voxels.
+
+Signed score ``g = A / max(N, 1) - lambda_f F / max(O, 1)``. A voxel is occupied when it has support
+(N > 0) and either ``g >= tau_s`` (strong) or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f`` (weak
+support not contradicted by free space). An unoccupied voxel is free (0) when some frame carved it
+(F > 0) and unobserved (255) otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry.lattice import index_to_center, unpack_keys
+from ..io.atomic import atomic_path
+from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from .memory import FIXED_SCALE
+
+
+@dataclass(frozen=True)
+class OccupancyParams:
+    """Decision thresholds (defaults and reasons: docs/mapping.md)."""
+
+    lambda_f: float = 1.0  # weight of the free-space ratio in g
+    tau_s: float = 0.35  # strong support: accepted whatever the free-space ratio
+    tau_w: float = 0.12  # weak support: accepted only if F / max(O, 1) <= gamma_f
+    gamma_f: float = 0.35  # largest admissible free-space ratio for weak support
+
+
+def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:
+    """``g`` and the free ratio ``F / max(O, 1)`` (float64) from the stored integers (A fixed point)."""
+    a = np.asarray(A, np.float64).reshape(-1) / FIXED_SCALE
+    n = np.maximum(np.asarray(N, np.float64).reshape(-1), 1.0)
+    f = np.asarray(F, np.float64).reshape(-1)
+    o = np.maximum(np.asarray(O, np.float64).reshape(-1), 1.0)
+    return a / n, f / o
+
+
+def classify(A, N, F, O, p: OccupancyParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Occupied and free masks (bool) and the score g (float64) of voxels given their channels."""
+    support, free_ratio = signed_score(A, N, F, O)
+    g = support - p.lambda_f * free_ratio
+    has = np.asarray(N).reshape(-1) > 0
+    occ = has & ((g >= p.tau_s) | ((g >= p.tau_w) & (free_ratio <= p.gamma_f)))
+    free = ~occ & (np.asarray(F).reshape(-1) > 0)
+    return occ, free, g
+
+
+def memory_to_grid(keys: np.ndarray, channels: dict, voxel_size: float, p: OccupancyParams,
+                   class_names=("empty",)) -> tuple[Grid, np.ndarray]:
+    """Three-state grid over the box of all observed voxels.
+
+    Parameters
+    ----------
+    keys : (n,) int64 sorted voxel keys; channels : dict with A, N, F, O (n, 1) int64
+
+    Returns
+    -------
+    grid : Grid, labels 254 occupied / 0 free / 255 unobserved
+    occupied_keys : (m,) int64 keys of the occupied voxels (sorted)
+    """
+    occ, free, _ = classify(channels["A"], channels["N"], channels["F"], channels["O"], p)
+    keep = occ | free
+    idx = unpack_keys(keys[keep])
+    if len(idx) == 0:
+        labels = np.full((1, 1, 1), UNKNOWN, np.uint8)
+        return Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)), keys[:0]
+    i0 = idx.min(axis=0)
+    shape = idx.max(axis=0) - i0 + 1
+    labels = np.full(tuple(shape), UNKNOWN, np.uint8)
+    local = idx - i0
+    labels[tuple(local.T)] = np.where(occ[keep], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
+    grid = Grid(labels, index_to_center(i0, voxel_size), voxel_size, list(class_names))
+    return grid, keys[occ]
+
+
+def height_colors(z: np.ndarray) -> np.ndarray:
+    """(n, 3) uint8 colours of heights z (n,) metres: a blue-green-yellow-red ramp over their range."""
+    z = np.asarray(z, np.float64)
+    t = (z - z.min()) / max(float(np.ptp(z)), 1e-9) if len(z) else z
+    stops = np.array([[49, 54, 149], [69, 170, 110], [250, 220, 60], [215, 48, 39]], np.float64)
+    x = t * (len(stops) - 1)
+    k = np.clip(np.floor(x).astype(int), 0, len(stops) - 2)
+    f = (x - k)[:, None]
+    return np.rint(stops[k] * (1 - f) + stops[k + 1] * f).astype(np.uint8)
+
+
+def write_ply_points(path: str | Path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Atomically write a binary little-endian PLY point cloud.
+
+    points : (n, 3) float, metres, world frame (stored float32); colors : (n, 3) uint8
+    """
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    col = np.asarray(colors, np.uint8).reshape(-1, 3)
+    rec = np.empty(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                   ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    rec["red"], rec["green"], rec["blue"] = col[:, 0], col[:, 1], col[:, 2]
+    header = ("ply\nformat binary_little_endian 1.0\ncomment panovocc occupied voxel centres\n"
+              f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(header.encode("ascii"))
+            f.write(rec.tobytes())
+
+
+def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean: np.ndarray | None = None):
+    """Centres (n, 3) float64 metres of occupied voxels and their colours (mean RGB if given, else height)."""
+    centres = index_to_center(unpack_keys(occ_keys), voxel_size)
+    if rgb_mean is not None:
+        return centres, np.clip(np.rint(rgb_mean), 0, 255).astype(np.uint8)
+    return centres, height_colors(centres[:, 2])
