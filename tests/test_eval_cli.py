@@ -1,0 +1,116 @@
+"""End to end: panovocc eval / coverage / show / convert, and one-line errors with exit status 2."""
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+
+from panovocc_cli.cli import main
+from panovocc_cli.io.grid import Grid, read_grid, write_grid
+from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
+
+from test_eval_coverage import box_depth, box_room_gt, trajectory
+
+
+def run(capsys, *args):
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in args])
+    out = capsys.readouterr()
+    return e.value.code, out.out, out.err
+
+
+@pytest.fixture()
+def pair(tmp_path):
+    gt = box_room_gt()
+    lab = gt.labels.copy()
+    lab[1:-1, 1:-1, 0] = 2  # the floor layer becomes class 'floor'
+    gt = Grid(lab, gt.origin, gt.voxel_size, ["empty", "wall", "floor"])
+    pred_lab = lab[2:, :, :].copy()  # the prediction misses the -x wall and calls the floor 'wall'
+    pred_lab[pred_lab == 2] = 1
+    pred = Grid(pred_lab, gt.origin + [2 * 0.08, 0, 0], 0.08, ["empty", "wall"])
+    write_grid(tmp_path / "gt.npz", gt)
+    write_grid(tmp_path / "pred.npz", pred)
+    return tmp_path / "pred.npz", tmp_path / "gt.npz"
+
+
+def test_eval_table_json_out_and_pooling(capsys, tmp_path, pair):
+    pred, gt = pair
+    code, out, _ = run(capsys, "eval", pred, gt, "--out", tmp_path / "scores")
+    assert code == 0 and "FreeOcc (headline)" in out and "observed only" in out and "absent from GT" in out
+    for f in ("scores.csv", "scores.md", "scores.tex", "counts.csv", "scores.json", "config.json"):
+        assert (tmp_path / "scores" / f).is_file(), f
+    code, out, _ = run(capsys, "eval", pred, gt, "--json", "--classes", "wall,floor")
+    single = json.loads(out)
+    assert code == 0 and single["mask"] == "freeocc" and single["classes"] == ["wall", "floor"]
+    assert single["per_class"]["floor"] == 0.0 and 0 < single["iou"] < 100
+    assert set(single["masks"]) == {"freeocc", "observed"}
+    (tmp_path / "pairs.csv").write_text(f"pred,gt\n{pred.name},{gt.name}\n# comment\n")
+    code, out, _ = run(capsys, "eval", pred, gt, "--pair", pred, gt, "--pairs", tmp_path / "pairs.csv", "--json",
+                       "--classes", "wall,floor", "--mask", "observed")
+    pooled = json.loads(out)
+    assert pooled["mask"] == "observed" and pooled["counts"]["pairs"] == 3 and len(pooled["pairs"]) == 3
+    assert pooled["masks"]["freeocc"]["counts"]["tp"] == 3 * single["counts"]["tp"]
+    assert pooled["masks"]["freeocc"]["iou"] == pytest.approx(single["iou"])
+
+
+def test_eval_bad_inputs_exit_2(capsys, tmp_path, pair):
+    pred, gt = pair
+    coarse = read_grid(gt)
+    write_grid(tmp_path / "coarse.npz", Grid(coarse.labels, np.full(3, 0.05), 0.1, coarse.class_names))
+    for args in ([pred, tmp_path / "missing.npz"], [pred], [pred, tmp_path / "coarse.npz"],
+                 [pred, gt, "--mask", "nope"], [pred, gt, "--pair", pred], [pred, gt, "--classes", " , "]):
+        code, out, err = run(capsys, "eval", *args)
+        assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, (args, err)
+
+
+def write_box_sequence(root, width=128):
+    poses = trajectory()
+    write_meta(root, SequenceMeta(width=width, height=width // 2, frames=len(poses)))
+    write_sequence_poses(root, np.stack(poses))
+    for i, T in enumerate(poses):
+        write_frame(root, i, np.zeros((width // 2, width, 3), np.uint8), box_depth(T, width), None)
+
+
+def test_coverage_command(capsys, tmp_path):
+    write_box_sequence(tmp_path / "seq", 256)
+    write_grid(tmp_path / "gt.npz", box_room_gt())
+    code, out, err = run(capsys, "coverage", tmp_path / "seq", tmp_path / "gt.npz", "--out", tmp_path / "cov",
+                         "--every", "2")
+    assert code == 0, err
+    rows = (tmp_path / "cov" / "coverage.csv").read_text().splitlines()
+    assert rows[0] == "frame,panoramic,perspective" and [r.split(",")[0] for r in rows[1:]] == ["0", "2", "3"]
+    vals = np.array([[float(x) for x in r.split(",")[1:]] for r in rows[1:]])
+    assert vals[0, 0] == pytest.approx(1.0) and np.all(vals[:, 0] >= vals[:, 1])
+    assert (tmp_path / "cov" / "coverage.png").stat().st_size > 1000
+    assert "100.00%" in out
+    code, _, err = run(capsys, "coverage", tmp_path / "seq", tmp_path / "gt.npz", "--out", tmp_path / "c2",
+                       "--fov-deg", "200")
+    assert code == 2 and err.startswith("error: ")
+
+
+def test_show_and_convert_commands(capsys, tmp_path, pair):
+    pred, gt = pair
+    code, out, err = run(capsys, "show", pred, gt, tmp_path / "pic.png", "--cut-top", "1", "--titles",
+                         "prediction,ground truth", "--width-px", "800")
+    assert code == 0, err
+    import matplotlib.image as mpimg
+
+    assert mpimg.imread(tmp_path / "pic.png").shape[1] == 800
+    code, _, err = run(capsys, "show", pred, gt, tmp_path / "pic.png", "--titles", "only one")
+    assert code == 2 and "titles" in err
+
+    code, _, err = run(capsys, "convert", "to-replicaocc", gt, tmp_path / "gt.pkl")
+    assert code == 0, err
+    with open(tmp_path / "gt.pkl", "rb") as f:
+        d = pickle.load(f)
+    assert set(d) >= {"global_labels", "global_pts", "scene_dim"}
+    (tmp_path / "names.txt").write_text("# ids 1..\nwall\nfloor\n")
+    code, out, err = run(capsys, "convert", "replicaocc", tmp_path / "gt.pkl", tmp_path / "back.npz",
+                         "--class-names", tmp_path / "names.txt")
+    assert code == 0, err
+    a, b = read_grid(gt), read_grid(tmp_path / "back.npz")
+    assert np.array_equal(a.labels, b.labels) and a.class_names == b.class_names
+    code, _, err = run(capsys, "convert", "replicaocc", tmp_path / "gt.pkl", tmp_path / "x.npz", "--class-names",
+                       "wall", "--voxel-size", "0.1")
+    assert code == 2 and "voxel_size" in err and not (tmp_path / "x.npz").exists()
