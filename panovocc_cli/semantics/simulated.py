@@ -66,7 +66,7 @@ class SimulatedConfig:
     pole_gain: float = 1.5  # noise x (1 + pole_gain |sin phi|^pole_power)
     pole_power: float = 2.0
     boundary_deg: float = 2.5  # width of the eroded band along label boundaries, degrees of latitude
-    boundary_logit: float = 4.0  # push toward the neighbour's class at the boundary itself
+    boundary_logit: float = 6.0  # push toward the neighbour's class at the boundary itself
     unlabeled_noise: float = 0.3  # field scale on unlabeled (id 0) pixels
     calib_samples: int = 20000  # pixels used to fit the per-frame temperature
 
@@ -299,7 +299,7 @@ def simulate_logits(labels: np.ndarray, class_names: Sequence[str], vocab: Seque
         ok = tgt >= 0
         rows, cols, tgt = rows[ok], cols[ok], tgt[ok]
         decay = 1.0 - (dist[rows, cols] - 1) / radius
-        mod = np.clip(0.6 + 0.4 * fields[rows, cols, c], 0.0, None)
+        mod = np.exp(0.4 * fields[rows, cols, c])  # log-normal, median 1: erosion varies along the edge
         logits[rows, cols, tgt] += (cfg.boundary_logit * min(cfg.noise, 3.0) * decay * mod).astype(np.float32)
 
     # Calibration: one temperature per frame so that mean confidence = accuracy.
