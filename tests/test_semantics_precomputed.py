@@ -33,8 +33,10 @@ def test_logits_round_trip_and_vocab_mapping(tmp_path):
     # other order, alias, a missing word: matched by canonical name, missing gets ~1e-6
     out = seg.logits(RGB, ["lighting", "wall", "chair"], 3)
     np.testing.assert_allclose(out[..., 2], MISSING_LOGPROB, rtol=1e-6)
-    sub = softmax(L[..., [2, 0]])
-    np.testing.assert_allclose(softmax(out)[..., :2], sub, atol=1e-4)
+    lp = np.log(softmax(L))
+    expect = softmax(np.concatenate([lp[..., [2, 0]], np.full((H, W, 1), MISSING_LOGPROB)], -1))
+    np.testing.assert_allclose(softmax(out), expect, atol=1e-5)
+    assert np.array_equal(out[..., :2].argmax(-1), L[..., [2, 0]].argmax(-1))
 
 
 def test_float16_and_probs(tmp_path):
