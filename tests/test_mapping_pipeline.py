@@ -1,0 +1,133 @@
+"""map / revise / resume end to end on a tiny rendered room; exactness of the reversible update."""
+
+import json
+
+import numpy as np
+import pytest
+
+from panovocc_cli.errors import PanovoccError
+from panovocc_cli.io.grid import read_grid
+from panovocc_cli.io.poses import write_poses
+from panovocc_cli.mapping.contributors import GeometryParams
+from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
+from panovocc_cli.mapping.synthetic import ROOM, write_room_sequence
+
+W = 128
+N = 5
+
+
+@pytest.fixture(scope="module")
+def room_seq(tmp_path_factory):
+    seq = tmp_path_factory.mktemp("seq") / "room"
+    write_room_sequence(seq, N, W, furniture=True)
+    return seq
+
+
+def _cfg(seq, out, **kw):
+    return MapConfig(seq=str(seq), out=str(out), checkpoint_every=2, geometry=GeometryParams(), **kw)
+
+
+def _bytes(out):
+    return {n: (out / n).read_bytes() for n in ("memory.npz", "prediction.npz", "map.ply")}
+
+
+def test_map_outputs_three_states(room_seq, tmp_path):
+    out = tmp_path / "m"
+    s = run_map(_cfg(room_seq, out), progress=False)
+    g = read_grid(out / "prediction.npz")
+    vals = set(np.unique(g.labels).tolist())
+    assert vals == {0, 254, 255}
+    # the room's interior (away from walls and furniture) is free, the walls are occupied
+    lo, hi = np.array(ROOM[0]), np.array(ROOM[1])
+    c = g.centers(np.argwhere(np.ones(g.labels.shape, bool))).reshape(g.labels.shape + (3,))
+    margin = np.minimum(c - lo, hi - c).min(axis=-1)
+    centre_air = (np.abs(c[..., 0]) < 0.6) & (np.abs(c[..., 1]) < 0.5) & (np.abs(c[..., 2] - 1.9) < 0.3)
+    assert (g.labels[centre_air] == 0).mean() > 0.95
+    occ = g.labels == 254
+    assert occ.sum() == s["occupied"] > 500
+    assert np.median(np.abs(margin[occ])) < 0.1  # occupied voxels sit on the walls (furniture aside)
+    assert np.mean(margin[occ] < -0.2) < 0.005  # almost nothing far behind a wall (grazing kernel tails)
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["geometry"]["stride"] == 1 and cfg["geometry"]["kernel"] == "psvf"
+    import open3d as o3d
+
+    pc = o3d.io.read_point_cloud(str(out / "map.ply"))
+    assert len(pc.points) == s["occupied"] and pc.has_colors()
+    # the memory reloads to the same grid
+    mem, done, poses = load_memory(out)
+    assert done == N and poses.shape == (N, 4, 4)
+
+
+def test_point_kernel_ablation_runs(room_seq, tmp_path):
+    cfg = _cfg(room_seq, tmp_path / "p")
+    cfg.geometry = GeometryParams(kernel="point")
+    s = run_map(cfg, progress=False)
+    assert s["occupied"] > 300
+
+
+def test_revise_wrong_poses_to_right_equals_direct(room_seq, tmp_path):
+    direct = tmp_path / "direct"
+    run_map(_cfg(room_seq, direct), progress=False)
+    true = np.loadtxt(room_seq / "poses.txt").reshape(-1, 4, 4)
+    wrong = true.copy()
+    rng = np.random.default_rng(3)
+    for i in (1, 3):
+        a = rng.normal(0, 0.05)
+        c, s = np.cos(a), np.sin(a)
+        wrong[i, :3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ wrong[i, :3, :3]
+        wrong[i, :3, 3] += rng.normal(0, 0.1, 3)
+    write_poses(tmp_path / "wrong.txt", wrong)
+    rev = tmp_path / "rev"
+    run_map(_cfg(room_seq, rev, poses=str(tmp_path / "wrong.txt")), progress=False)
+    assert (rev / "prediction.npz").read_bytes() != (direct / "prediction.npz").read_bytes()
+    s = run_revise(rev, room_seq / "poses.txt", progress=False)
+    assert s["revised"] == 2
+    np.testing.assert_array_equal(read_grid(rev / "prediction.npz").labels, read_grid(direct / "prediction.npz").labels)
+    assert (rev / "memory.npz").read_bytes() == (direct / "memory.npz").read_bytes()
+    assert run_revise(rev, room_seq / "poses.txt", progress=False)["revised"] == 0
+    # bad pose files: wrong count, non-rigid
+    write_poses(tmp_path / "short.txt", true[:3])
+    with pytest.raises(PanovoccError, match="3 poses"):
+        run_revise(rev, tmp_path / "short.txt", progress=False)
+    lines = (room_seq / "poses.txt").read_text().splitlines()
+    lines[0] = " ".join(["2"] * 16)
+    (tmp_path / "bad.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(PanovoccError):
+        run_revise(rev, tmp_path / "bad.txt", progress=False)
+    assert (rev / "memory.npz").read_bytes() == (direct / "memory.npz").read_bytes()
+
+
+def test_resume_after_kill_gives_same_bytes(room_seq, tmp_path):
+    full = tmp_path / "full"
+    run_map(_cfg(room_seq, full), progress=False)
+    part = tmp_path / "part"
+    s = run_map(_cfg(room_seq, part), progress=False, stop_after=3)  # killed after frame 3, checkpoint at 2
+    assert s["stopped_at"] == 3 and not (part / "prediction.npz").exists()
+    assert load_memory(part)[1] == 2
+    run_map(resume_out=part, progress=False)
+    assert _bytes(part) == _bytes(full)
+
+
+def test_cli_map_revise_and_bad_input(room_seq, tmp_path, capsys):
+    from panovocc_cli.cli import main
+
+    def run(*args):
+        with pytest.raises(SystemExit) as e:
+            main(list(args))
+        return e.value.code, capsys.readouterr()
+
+    code, io = run("map", str(room_seq), str(tmp_path / "o"), "--quiet", "--checkpoint-every", "0")
+    assert code == 0 and "occupied" in io.out
+    code, io = run("map", str(room_seq), str(tmp_path / "o"), "--quiet")
+    assert code == 2 and "--resume" in io.err and len(io.err.strip().splitlines()) == 1
+    code, io = run("map", str(tmp_path / "nope"), str(tmp_path / "o2"), "--quiet")
+    assert code == 2 and not (tmp_path / "o2").exists()
+    write_poses(tmp_path / "few.txt", np.loadtxt(room_seq / "poses.txt").reshape(-1, 4, 4)[:2])
+    code, io = run("map", str(room_seq), str(tmp_path / "o3"), "--poses", str(tmp_path / "few.txt"), "--quiet")
+    assert code == 2 and "2 poses" in io.err and not (tmp_path / "o3").exists()
+    code, io = run("map", str(room_seq), str(tmp_path / "o4"), "--kernel", "cube", "--quiet")
+    assert code == 2 and not (tmp_path / "o4").exists()
+    code, io = run("revise", str(tmp_path / "o"), str(room_seq / "poses.txt"), "--quiet")
+    assert code == 0 and "revised 0 of 5" in io.out
+    code, io = run("map", "--resume", str(tmp_path / "o"), "--quiet")
+    assert code == 0
