@@ -1,0 +1,1 @@
+"""Scenes: the labelled-mesh Scene, Replica's on-disk format, procedural scenes."""
