@@ -8,7 +8,12 @@ from __future__ import annotations
 
 import sys
 
-import click
+import typer
+
+try:  # typer >= 0.20 ships its own copy of click; older typer uses the click package
+    from typer import _click as click
+except ImportError:  # pragma: no cover
+    import click
 
 from ..errors import EXIT_BAD_INPUT, PanovoccError
 from ._app import app
@@ -27,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.ClickException as e:
         e.show()
         sys.exit(e.exit_code)
-    except click.exceptions.Abort:
+    except (typer.Abort, getattr(click.exceptions, "Abort", typer.Abort)):
         print("aborted", file=sys.stderr)
         sys.exit(130)
     except KeyboardInterrupt:
