@@ -278,6 +278,9 @@ def nearest_evidence_transfer(occupied_idx: np.ndarray, labels: np.ndarray, has_
     src = np.flatnonzero(has)
     if need.size == 0 or src.size == 0 or max_dist_vox <= 0:
         return out
+    # Build the tree in lattice-key order so ties between equidistant sources do not depend on the
+    # order the voxels were given in.
+    src = src[np.argsort(pack_keys(idx[src]), kind="stable")]
     tree = cKDTree(idx[src].astype(np.float64), balanced_tree=False, compact_nodes=False)
     dist, nn = tree.query(idx[need].astype(np.float64), k=1, distance_upper_bound=float(max_dist_vox) + 1e-9)
     ok = np.isfinite(dist)
