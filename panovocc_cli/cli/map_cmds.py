@@ -29,9 +29,9 @@ def map_cmd(
     eps_rel: float = typer.Option(0.01, help="Free-space margin eps_rel (dimensionless, per metre of range)."),
     max_range: float = typer.Option(12.0, help="Depths and voxels farther than this are ignored, metres."),
     lambda_f: float = typer.Option(1.0, help="Weight lambda_f of the free-space ratio in the signed score."),
-    tau_s: float = typer.Option(0.35, help="Strong support threshold tau_s on g (per-frame support units)."),
-    tau_w: float = typer.Option(0.12, help="Weak support threshold tau_w on g."),
-    gamma_f: float = typer.Option(0.35, help="Largest free-space ratio F/O for weak support (0..1)."),
+    tau_s: float = typer.Option(0.12, help="Strong support threshold tau_s on g (per-frame support units)."),
+    tau_w: float = typer.Option(0.04, help="Weak support threshold tau_w on g."),
+    gamma_f: float = typer.Option(0.6, help="Largest free-space ratio F/O for weak support (0..1)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent occupancy memory (OUT/) and grid (OUT/prediction.npz)."""

@@ -24,9 +24,9 @@ class OccupancyParams:
     """Decision thresholds (defaults and reasons: docs/mapping.md)."""
 
     lambda_f: float = 1.0  # weight of the free-space ratio in g
-    tau_s: float = 0.35  # strong support: accepted whatever the free-space ratio
-    tau_w: float = 0.12  # weak support: accepted only if F / max(O, 1) <= gamma_f
-    gamma_f: float = 0.35  # largest admissible free-space ratio for weak support
+    tau_s: float = 0.12  # strong support: accepted whatever the free-space ratio
+    tau_w: float = 0.04  # weak support: accepted only if F / max(O, 1) <= gamma_f
+    gamma_f: float = 0.6  # largest admissible free-space ratio for weak support
 
 
 def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:
