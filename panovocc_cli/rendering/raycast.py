@@ -8,6 +8,8 @@ times a Lambert + ambient shade (a head light along the ray plus a fixed sky lig
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
@@ -22,13 +24,14 @@ SKY_DIR = np.array([0.3, 0.2, 0.93]) / np.linalg.norm([0.3, 0.2, 0.93])
 
 
 @njit(parallel=True, cache=True)
-def _shade(t_hit, prim, uv, normals, dirs, tri_col, face_class, sky, out_rgb, out_depth, out_label):
+def _shade(t_hit, prim, uv, normals, dirs, tri_col, face_class, sky, out_rgb, out_depth, out_label, out_cos):
     n = t_hit.shape[0]
     for i in prange(n):
         p = prim[i]
         if p == 0xFFFFFFFF or not np.isfinite(t_hit[i]):
             out_depth[i] = 0.0
             out_label[i] = 0
+            out_cos[i] = 0.0
             out_rgb[i, 0] = 0
             out_rgb[i, 1] = 0
             out_rgb[i, 2] = 0
@@ -40,6 +43,7 @@ def _shade(t_hit, prim, uv, normals, dirs, tri_col, face_class, sky, out_rgb, ou
         w = 1.0 - u - v
         nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
         d = abs(nx * dirs[i, 0] + ny * dirs[i, 1] + nz * dirs[i, 2])
+        out_cos[i] = d
         s = nx * sky[0] + ny * sky[1] + nz * sky[2]
         # Normals face the viewer's side for the sky term too (surfaces are one-sided).
         if nx * dirs[i, 0] + ny * dirs[i, 1] + nz * dirs[i, 2] > 0:
@@ -48,6 +52,20 @@ def _shade(t_hit, prim, uv, normals, dirs, tri_col, face_class, sky, out_rgb, ou
         for c in range(3):
             val = (w * tri_col[p, 0, c] + u * tri_col[p, 1, c] + v * tri_col[p, 2, c]) * shade
             out_rgb[i, c] = np.uint8(min(255.0, val + 0.5))
+
+
+class Frame(NamedTuple):
+    """One rendered ERP frame.
+
+    rgb : (H, W, 3) uint8; depth : (H, W) float32 metres, radial, 0 = no hit; labels : (H, W) int32 ids
+    into the scene's class_names (0 = no hit / unlabeled); cos_incidence : (H, W) float32, |cos| of the
+    angle between ray and surface normal (0 where nothing was hit).
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    labels: np.ndarray
+    cos_incidence: np.ndarray
 
 
 class RaycastRenderer:
@@ -86,21 +104,15 @@ class RaycastRenderer:
         out["dirs"] = self._rays[:, 3:]
         return out
 
-    def render(self, T_world_cam: np.ndarray):
-        """Render one pose.
-
-        Returns
-        -------
-        rgb : (H, W, 3) uint8
-        depth : (H, W) float32, metres, radial, 0 = no hit
-        labels : (H, W) int32 ids into the scene's class_names, 0 = no hit / unlabeled
-        """
+    def render(self, T_world_cam: np.ndarray) -> Frame:
+        """Render one pose (``T_world_cam`` (4, 4) float64, OpenCV axes) into a :class:`Frame`."""
         a = self.cast(T_world_cam)
         n = self.rays_cam.shape[0]
         rgb = np.empty((n, 3), np.uint8)
         depth = np.empty(n, np.float32)
         labels = np.empty(n, np.int32)
+        cos = np.empty(n, np.float32)
         _shade(a["t_hit"], a["primitive_ids"], a["primitive_uvs"], a["primitive_normals"], a["dirs"], self.tri_col,
-               self.face_class, SKY_DIR.astype(np.float32), rgb, depth, labels)
+               self.face_class, SKY_DIR.astype(np.float32), rgb, depth, labels, cos)
         H, W = self.height, self.width
-        return rgb.reshape(H, W, 3), depth.reshape(H, W), labels.reshape(H, W)
+        return Frame(rgb.reshape(H, W, 3), depth.reshape(H, W), labels.reshape(H, W), cos.reshape(H, W))
