@@ -18,8 +18,16 @@ except ImportError:  # pragma: no cover
 from ..errors import EXIT_BAD_INPUT, PanovoccError
 from ._app import app
 
-# Importing a module registers its commands on ``app``.
-from . import data_cmds, eval_cmds, map_cmds  # noqa: E402,F401
+# Importing a module registers its commands on ``app``, in the order --help lists them.
+from . import data_cmds, map_cmds, eval_cmds, demo_cmds  # noqa: E402,F401,I001
+
+
+@app.command()
+def version() -> None:
+    """Print the toolkit's version."""
+    from .. import __version__
+
+    typer.echo(__version__)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,10 +11,3 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
-
-@app.command()
-def version() -> None:
-    """Print the toolkit's version."""
-    from .. import __version__
-
-    typer.echo(__version__)
