@@ -54,6 +54,16 @@ def _shade(t_hit, prim, uv, normals, dirs, tri_col, face_class, sky, out_rgb, ou
             out_rgb[i, c] = np.uint8(min(255.0, val + 0.5))
 
 
+@njit(cache=True)
+def _world_rays(rays_cam, R, t, out):
+    """out[:, :3] = t, out[:, 3:] = R @ ray. Plain loops: a BLAS matmul here leaves its worker threads
+    spinning, which slowed the following ``cast_rays`` by 70 % on a 2-core machine."""
+    for n in range(rays_cam.shape[0]):
+        for i in range(3):
+            out[n, 3 + i] = rays_cam[n, 0] * R[i, 0] + rays_cam[n, 1] * R[i, 1] + rays_cam[n, 2] * R[i, 2]
+            out[n, i] = t[i]
+
+
 class Frame(NamedTuple):
     """One rendered ERP frame.
 
@@ -96,9 +106,7 @@ class RaycastRenderer:
         """Cast all rays of one pose; returns Open3D's answer as numpy arrays (``t_hit``, ``primitive_ids``,
         ``primitive_uvs``, ``primitive_normals``) plus ``dirs`` (N, 3) world ray directions."""
         T = check_rigid(T_world_cam, "T_world_cam")
-        R = T[:3, :3].astype(np.float32)
-        np.matmul(self.rays_cam, R.T, out=self._rays[:, 3:])
-        self._rays[:, :3] = T[:3, 3].astype(np.float32)
+        _world_rays(self.rays_cam, T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32), self._rays)
         ans = self.rs.cast_rays(self._o3d.core.Tensor.from_numpy(self._rays), nthreads=self.threads)
         out = {k: ans[k].numpy() for k in ("t_hit", "primitive_ids", "primitive_uvs", "primitive_normals")}
         out["dirs"] = self._rays[:, 3:]

@@ -6,6 +6,7 @@ leaves nothing. PNGs are written by a background thread (low compression) while 
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -58,10 +59,15 @@ def make_renderer(scene, width: int, backend: str, threads: int = 0):
     raise PanovoccError(f"unknown backend {backend!r} (expected one of {', '.join(BACKENDS)})")
 
 
-def _write(seq: Path, i: int, rgb, depth, labels) -> None:
-    from ..io.sequence import write_frame
+def _frame_jobs(seq: Path, i: int, rgb, depth, labels) -> list:
+    """The three PNG writes of frame ``i`` (the layout of :func:`panovocc_cli.io.sequence.write_frame`)."""
+    from ..io.images import depth_to_uint16, write_png
+    from ..io.sequence import frame_stem
 
-    write_frame(seq, i, rgb, depth, labels, depth_scale=DEPTH_SCALE)
+    stem = frame_stem(i)
+    return [(write_png, seq / "rgb" / f"{stem}.png", rgb),
+            (write_png, seq / "depth" / f"{stem}.png", depth_to_uint16(depth, DEPTH_SCALE)),
+            (write_png, seq / "semantic" / f"{stem}.png", np.asarray(labels).astype(np.uint16))]
 
 
 def run_render(cfg: RenderConfig) -> dict:
@@ -94,10 +100,17 @@ def run_render(cfg: RenderConfig) -> dict:
         meta.extra["render"]["noise_params"] = dict(NOISE_PARAMS)
     t0 = time.perf_counter()
     valid = 0.0
-    with atomic_dir(cfg.out) as tmp, ThreadPoolExecutor(max_workers=1) as pool:
+    # PNG encoding runs in threads (OpenCV releases the GIL). On a machine with few cores, overlapping it
+    # with the next cast_rays makes both slower (Open3D's parallel loop waits for its slowest thread), so
+    # there each frame's writes finish before the next frame is cast; with more cores they overlap.
+    cores = os.cpu_count() or 1
+    ahead = 0 if cores <= 2 else 2
+    with atomic_dir(cfg.out) as tmp, ThreadPoolExecutor(max_workers=3) as pool:
         write_meta(tmp, meta)
         write_sequence_poses(tmp, poses)
-        pending = []
+        for d in ("rgb", "depth", "semantic"):
+            (tmp / d).mkdir()
+        pending: list = []
         for i, T in enumerate(tqdm(poses, desc="render", unit="frame", file=sys.stderr, disable=not cfg.progress)):
             fr = renderer.render(T)
             depth, rgb = fr.depth, fr.rgb
@@ -106,11 +119,13 @@ def run_render(cfg: RenderConfig) -> dict:
                     depth)
                 depth, rgb = degrade(depth, rgb, inc, np.isin(fr.labels, glass_ids), cfg.seed, i)
             valid += float((depth > 0).mean())
-            pending.append(pool.submit(_write, tmp, i, rgb, depth, fr.labels))
-            if len(pending) > 2:
-                pending.pop(0).result()
-        for p in pending:
-            p.result()
+            pending.append([pool.submit(*job) for job in _frame_jobs(tmp, i, rgb, depth, fr.labels)])
+            while len(pending) > ahead:
+                for f in pending.pop(0):
+                    f.result()
+        for jobs in pending:
+            for f in jobs:
+                f.result()
     if hasattr(renderer, "close"):
         renderer.close()
     dt = time.perf_counter() - t0
