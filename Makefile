@@ -8,12 +8,13 @@ DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
 DEMO := work/demo
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: setup demo test bench clean help
+.PHONY: setup demo test bench bench-render clean help
 
 help:
 	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
 	@echo "make test   set up .venv, then run the test suite"
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
+	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
 
 # Debian libraries (open3d: libgl1 libegl1 libusb-1.0-0 libgomp1; headless pyrender: libosmesa6),
 # installed only when missing and only when running as root.
@@ -42,6 +43,10 @@ test: setup
 
 bench: setup
 	$(BIN)/panovocc bench work/bench
+
+bench-render: setup
+	$(BIN)/panovocc synth work/bench-scene --seed 0
+	$(BIN)/python -m panovocc_cli.rendering.bench work/bench-scene --width 1024 --frames 60
 
 clean:
 	rm -rf work $(VENV) *.egg-info
