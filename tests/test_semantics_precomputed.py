@@ -89,7 +89,7 @@ def _setup(tmp_path, arrays=None, vocab=FILE_VOCAB):
     return tmp_path
 
 
-@pytest.mark.parametrize("vocab_text,msg", [(None, "vocab.json not found"), ("[", "invalid JSON"),
+@pytest.mark.parametrize("vocab_text,msg", [(None, "vocab.json: file not found"), ("[", "invalid JSON"),
                                             ("[]", "non-empty JSON list"), ('{"a": 1}', "non-empty JSON list"),
                                             ('["wall", "Wall"]', "repeat")])
 def test_bad_vocab_json(tmp_path, vocab_text, msg):

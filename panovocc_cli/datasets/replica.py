@@ -18,6 +18,7 @@ import numpy as np
 from ..classes import UNLABELED, canonical_name
 from ..errors import PanovoccError
 from ..io.atomic import write_text
+from ..io.jsonfile import read_json
 from .ply import read_ply, write_ply
 from .scene import Scene, split_polygons
 
@@ -39,12 +40,7 @@ def scene_paths(scene: str | Path) -> tuple[Path, Path]:
 
 def _load_info(path: Path) -> tuple[dict[int, str], dict[int, str]]:
     """Class names by class id and class names by object id (raw, not canonical)."""
-    if not path.is_file():
-        raise PanovoccError("semantic info not found (expected Replica's info_semantic.json)", path)
-    try:
-        info = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise PanovoccError(f"invalid JSON ({e})", path) from None
+    info = read_json(path, "Replica's info_semantic.json")
     if not isinstance(info, dict) or not isinstance(info.get("classes"), list):
         raise PanovoccError("expected a JSON object with a 'classes' list of {id, name}", path)
     try:

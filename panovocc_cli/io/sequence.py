@@ -21,6 +21,7 @@ from ..errors import PanovoccError
 from .images import depth_to_uint16, read_depth, read_labels, read_rgb, write_png
 from .poses import read_poses, write_poses
 from .atomic import write_text
+from .jsonfile import read_json
 
 STEM_DIGITS = 6
 
@@ -91,10 +92,7 @@ def read_meta(seq: str | Path) -> SequenceMeta:
     path = Path(seq) / "meta.json"
     if not path.is_file():
         raise PanovoccError("not a sequence folder: meta.json not found", Path(seq))
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise PanovoccError(f"invalid JSON ({e.msg if hasattr(e, 'msg') else e})", path) from None
+    d = read_json(path, "a sequence's meta.json")
     if not isinstance(d, dict):
         raise PanovoccError("expected a JSON object", path)
     return SequenceMeta.from_json(d, path)

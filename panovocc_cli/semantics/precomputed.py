@@ -26,6 +26,7 @@ import numpy as np
 from ..classes import canonical_name
 from ..errors import PanovoccError
 from ..io.atomic import write_text
+from ..io.jsonfile import read_json
 from ..io.images import read_image, write_png
 from ..io.npz import write_npz
 from ..io.sequence import frame_stem
@@ -41,12 +42,7 @@ def read_vocab_json(folder: str | Path) -> list[str]:
     path = Path(folder) / "vocab.json"
     if not Path(folder).is_dir():
         raise PanovoccError("precomputed segmentation folder not found", folder)
-    if not path.is_file():
-        raise PanovoccError("vocab.json not found (expected the list of class names the scores are over)", folder)
-    try:
-        names = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise PanovoccError(f"invalid JSON ({getattr(e, 'msg', e)})", path) from None
+    names = read_json(path, "the list of class names the scores are over")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) and n.strip() for n in names):
         raise PanovoccError("expected a non-empty JSON list of class-name strings", path)
     canon = [canonical_name(n) for n in names]
