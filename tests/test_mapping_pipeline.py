@@ -117,16 +117,20 @@ def test_cli_map_revise_and_bad_input(room_seq, tmp_path, capsys):
             main(list(args))
         return e.value.code, capsys.readouterr()
 
+    # the room has no semantic labels: the CLI asks for an explicit segmenter (geometry only here)
     code, io = run("map", str(room_seq), str(tmp_path / "o"), "--quiet", "--checkpoint-every", "0")
+    assert code == 2 and "--segmenter none" in io.err and not (tmp_path / "o").exists()
+    geo = ("--segmenter", "none")
+    code, io = run("map", str(room_seq), str(tmp_path / "o"), "--quiet", "--checkpoint-every", "0", *geo)
     assert code == 0 and "occupied" in io.out
-    code, io = run("map", str(room_seq), str(tmp_path / "o"), "--quiet")
+    code, io = run("map", str(room_seq), str(tmp_path / "o"), "--quiet", *geo)
     assert code == 2 and "--resume" in io.err and len(io.err.strip().splitlines()) == 1
     code, io = run("map", str(tmp_path / "nope"), str(tmp_path / "o2"), "--quiet")
     assert code == 2 and not (tmp_path / "o2").exists()
     write_poses(tmp_path / "few.txt", np.loadtxt(room_seq / "poses.txt").reshape(-1, 4, 4)[:2])
-    code, io = run("map", str(room_seq), str(tmp_path / "o3"), "--poses", str(tmp_path / "few.txt"), "--quiet")
+    code, io = run("map", str(room_seq), str(tmp_path / "o3"), "--poses", str(tmp_path / "few.txt"), "--quiet", *geo)
     assert code == 2 and "2 poses" in io.err and not (tmp_path / "o3").exists()
-    code, io = run("map", str(room_seq), str(tmp_path / "o4"), "--kernel", "cube", "--quiet")
+    code, io = run("map", str(room_seq), str(tmp_path / "o4"), "--kernel", "cube", "--quiet", *geo)
     assert code == 2 and not (tmp_path / "o4").exists()
     code, io = run("revise", str(tmp_path / "o"), str(room_seq / "poses.txt"), "--quiet")
     assert code == 0 and "revised 0 of 5" in io.out

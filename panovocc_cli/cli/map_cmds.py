@@ -1,4 +1,5 @@
-"""Commands: ``map`` (sequence -> persistent memory + grid), ``revise`` (new poses), ``bench`` (speed)."""
+"""Commands: ``map`` (sequence -> persistent semantic memory + grid), ``revise`` (new poses), ``bench`` (speed),
+``segeval`` (a segmenter's own per-frame 2D mIoU)."""
 
 from __future__ import annotations
 
@@ -32,29 +33,55 @@ def map_cmd(
     tau_s: float = typer.Option(0.12, help="Strong support threshold tau_s on g (per-frame support units)."),
     tau_w: float = typer.Option(0.04, help="Weak support threshold tau_w on g."),
     gamma_f: float = typer.Option(0.6, help="Largest free-space ratio F/O for weak support (0..1)."),
+    segmenter: Optional[str] = typer.Option(
+        None, help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none (geometry "
+                   "only, occupied voxels 254). Default: simulated when SEQ has labels, else you must choose."),
+    vocab: Optional[str] = typer.Option(
+        None, help="Vocabulary chosen at run time: class names and sets, comma- or +-separated "
+                   "(eval8, open4, eval12, e.g. 'eval8,pillow'); default eval8,open4."),
+    noise: Optional[float] = typer.Option(
+        None, help="Simulated segmenter noise level (dimensionless; 1 = default realistic errors, 0 = exact)."),
+    seed: Optional[int] = typer.Option(None, help="Seed of the simulated segmenter's noise (default 0)."),
+    no_gsc: bool = typer.Option(False, "--no-gsc", help="Ablation: raw argmax of the fused evidence, no GSC."),
+    ply_color: Optional[str] = typer.Option(
+        None, help="map.ply colours: class (class colours, grey = no class) | rgb (mean pixel colour) | height."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
-    """Map a panoramic RGB-D sequence into a persistent occupancy memory (OUT/) and grid (OUT/prediction.npz)."""
+    """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
+    (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
     from ..mapping.contributors import GeometryParams
     from ..mapping.export import OccupancyParams
     from ..mapping.pipeline import MapConfig, run_map
+    from ..mapping.semantic import SemanticParams
 
     if resume:
         target = out if out is not None else seq
         if target is None or (seq is not None and out is not None):
             raise PanovoccError("--resume takes only the output folder: panovocc map --resume OUT")
+        given = [n for n, v in (("--segmenter", segmenter), ("--vocab", vocab), ("--noise", noise), ("--seed", seed),
+                                ("--ply-color", ply_color)) if v is not None] + (["--no-gsc"] if no_gsc else [])
+        if given:
+            raise PanovoccError(f"--resume reuses the run's saved config; {', '.join(given)} cannot change it")
         summary = run_map(resume_out=target, progress=not quiet)
     else:
         if seq is None or out is None:
             raise PanovoccError("map needs SEQ and OUT (or --resume OUT)")
+        if segmenter is None:
+            if not (seq / "semantic").is_dir() and (seq / "meta.json").is_file():
+                raise PanovoccError(f"{seq} has no ground-truth labels (semantic/) for the default simulated "
+                                    "segmenter: pass --segmenter precomputed:DIR, or --segmenter none (geometry only)")
+            segmenter = "auto"
         geo = GeometryParams(voxel_size=voxel_size, kernel=kernel, kappa=kappa, alpha=alpha, beta=beta,
                              eps_abs=eps_abs, eps_rel=eps_rel, max_range=max_range)
         occ = OccupancyParams(lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w, gamma_f=gamma_f)
+        sem = SemanticParams(segmenter=segmenter, vocab=vocab, noise=1.0 if noise is None else noise,
+                             seed=0 if seed is None else seed, use_gsc=not no_gsc, ply_color=ply_color or "class")
         cfg = MapConfig(seq=str(seq), out=str(out), poses=None if poses is None else str(poses),
-                        checkpoint_every=checkpoint_every, geometry=geo, occupancy=occ, stride=stride)
+                        checkpoint_every=checkpoint_every, geometry=geo, occupancy=occ, stride=stride, semantic=sem)
         summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
+    classed = f", {summary['classed']} with a class" if "classed" in summary else ""
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
-               f"(update {summary['update_ms_per_frame']:.1f} ms): {summary['occupied']} occupied, "
+               f"(update {summary['update_ms_per_frame']:.1f} ms): {summary['occupied']} occupied{classed}, "
                f"{summary['free']} free voxels -> {summary['out']}")
 
 
@@ -68,8 +95,34 @@ def revise(
     from ..mapping.pipeline import run_revise
 
     s = run_revise(out, poses, progress=not quiet)
-    typer.echo(f"revised {s['revised']} of {s['frames']} frames in {s['seconds']:.2f} s: {s['occupied']} occupied, "
-               f"{s['free']} free voxels")
+    classed = f", {s['classed']} with a class" if "classed" in s else ""
+    typer.echo(f"revised {s['revised']} of {s['frames']} frames in {s['seconds']:.2f} s: {s['occupied']} occupied"
+               f"{classed}, {s['free']} free voxels")
+
+
+@app.command()
+def segeval(
+    seq: Path = typer.Argument(..., help="Sequence folder with ground-truth labels (semantic/)."),
+    segmenter: str = typer.Option("simulated", help="Segmenter to score: simulated | precomputed:DIR."),
+    vocab: Optional[str] = typer.Option(None, help="Vocabulary (as for map); default eval8,open4."),
+    noise: float = typer.Option(1.0, help="Simulated segmenter noise level (dimensionless; 0 = exact)."),
+    seed: int = typer.Option(0, help="Seed of the simulated segmenter's noise."),
+    classes: str = typer.Option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c)."),
+    every: int = typer.Option(1, help="Score every K-th frame (frames 0, K, 2K, ...)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """A segmenter's own per-frame 2D mIoU on a labelled sequence (pixel counts pooled over frames)."""
+    import math
+
+    from ..mapping.semantic import SegevalConfig, run_segeval
+
+    res, frames = run_segeval(SegevalConfig(seq=str(seq), segmenter=segmenter, vocab=vocab, noise=noise, seed=seed,
+                                            classes=classes, every=every), progress=not quiet)
+    for (name, v), here in zip(res.iou.items(), res.present):
+        shown = "-" if math.isnan(v) else f"{100 * v:5.1f}"
+        typer.echo(f"  {name:<12} {shown}{'' if here else '  (absent from the ground truth, not in the mean)'}")
+    typer.echo(f"2D mIoU ({classes}, pooled over {len(frames)} frames): {100 * res.miou:.1f}%, "
+               f"pixel accuracy {100 * res.accuracy:.1f}%")
 
 
 @app.command()

@@ -6,11 +6,14 @@ Output folder (format details in docs/mapping.md)::
     OUT/memory.npz         the memory: non-zero voxels in key order, integer channels, frames_done, poses
     OUT/deltas/NNNNNN.npz  each frame's sparse delta (keys, channels, the pose it was computed under)
     OUT/poses.txt          the poses the retained deltas were computed under (NICE-SLAM form)
-    OUT/prediction.npz     three-state grid (254 occupied / 0 free / 255 unobserved), CONVENTIONS.md
-    OUT/map.ply            occupied voxel centres, coloured
+    OUT/prediction.npz     CONVENTIONS.md grid: occupied voxels carry a vocabulary class (1..C) or 254,
+                           0 free, 255 unobserved; class_names = ["empty"] + vocabulary
+    OUT/map.ply            occupied voxel centres, coloured by class (or mean RGB / height)
 
-The memory is the sum of the retained deltas; ``revise`` subtracts a frame's old delta and adds the
-one recomputed under its new pose (integers, so exact).
+Two contributors produce each frame's delta: the geometry (PSVF support, free space) and, unless
+the segmenter is ``none``, the semantics (:mod:`.semantic`: segmenter evidence, colour and normal
+sums). The memory is the sum of the retained deltas; ``revise`` subtracts a frame's old delta and adds
+the one recomputed under its new pose (integers, so exact, semantics included).
 """
 
 from __future__ import annotations
@@ -33,12 +36,13 @@ from ..io.npz import write_npz
 from ..io.poses import read_poses, write_poses
 from ..io.sequence import Sequence, frame_stem
 from .contributors import GeometryParams, geometry_delta
-from .export import OccupancyParams, memory_to_grid, occupied_points_and_colors, write_ply_points
+from .export import OccupancyParams, classify, memory_to_grid, occupied_points_and_colors, write_ply_points
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, Delta, VoxelMemory, merge_deltas
+from .semantic import SemanticParams
 
 CONFIG_NAME = "config.json"
 MEMORY_NAME = "memory.npz"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: semantic section (a version-1 config is a geometry-only map)
 
 
 @dataclass
@@ -52,6 +56,8 @@ class MapConfig:
     geometry: GeometryParams = field(default_factory=GeometryParams)
     occupancy: OccupancyParams = field(default_factory=OccupancyParams)
     stride: int = 0  # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
+    # segmenter, vocabulary, GSC; the default "auto" = simulated when the sequence has labels, else none
+    semantic: SemanticParams = field(default_factory=SemanticParams)
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
@@ -63,10 +69,22 @@ class MapConfig:
         try:
             g = GeometryParams(**d["geometry"])
             o = OccupancyParams(**d["occupancy"])
+            s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=d["seq"], out=d["out"], poses=d.get("poses"), checkpoint_every=int(d["checkpoint_every"]),
-                       geometry=g, occupancy=o, stride=int(d.get("stride", 0)))
+                       geometry=g, occupancy=o, stride=int(d.get("stride", 0)), semantic=s)
         except (KeyError, TypeError, ValueError) as e:
             raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
+
+
+def resolve_semantic(p: SemanticParams, seq: Sequence) -> SemanticParams:
+    """:func:`semantic.resolve` with the Python API's lenient ``auto``: simulated when the sequence has
+    labels, else ``none`` (geometry only). The ``map`` command refuses an unlabelled sequence without an
+    explicit ``--segmenter`` instead (see cli/map_cmds.py)."""
+    from .semantic import SEGMENTER_AUTO, SEGMENTER_NONE, resolve as resolve_sem
+
+    if p.segmenter.strip() == SEGMENTER_AUTO and not seq.has_labels:
+        p = dataclasses.replace(p, segmenter=SEGMENTER_NONE)
+    return resolve_sem(p, seq)
 
 
 def auto_stride(width: int) -> int:
@@ -111,6 +129,31 @@ class Contributor:
 
 def geometry_contributor(params: GeometryParams) -> Contributor:
     return Contributor("geometry", GEOMETRY_CHANNELS, lambda fr: geometry_delta(fr.depth, fr.T_world_cam, params))
+
+
+def semantic_contributor(params: SemanticParams, geometry: GeometryParams, width: int) -> Contributor:
+    """The semantic contributor of a resolved :class:`SemanticParams` (segmenter built once, rays cached)."""
+    from ..geometry.erp import ray_directions
+    from ..semantics.segmenter import make_segmenter
+    from .semantic import semantic_channels, semantic_frame
+
+    seg = make_segmenter(params.segmenter, seed=int(params.seed), noise=float(params.noise))
+    vocab = list(params.vocab)
+    rays = ray_directions(width, width // 2)
+
+    def fn(frame: Frame) -> Delta:
+        return semantic_frame(frame, seg, vocab, geometry.voxel_size, params.weights, geometry.min_range,
+                              geometry.max_range, rays)
+
+    return Contributor("semantic", semantic_channels(len(vocab)), fn)
+
+
+def build_contributors(cfg: MapConfig, seq: Sequence) -> list[Contributor]:
+    """Contributors of a resolved config: geometry, then semantics unless the segmenter is ``none``."""
+    out = [geometry_contributor(cfg.geometry)]
+    if cfg.semantic.enabled:
+        out.append(semantic_contributor(cfg.semantic, cfg.geometry, seq.meta.width))
+    return out
 
 
 def frame_delta(frame: Frame, contributors: Seq[Contributor]) -> Delta:
@@ -199,19 +242,38 @@ def load_config(out: str | Path) -> MapConfig:
 # Exports
 
 
-def export(out: Path, mem: VoxelMemory, occ: OccupancyParams) -> dict:
-    """Write prediction.npz and map.ply; return counts of occupied / free voxels."""
+def export(out: Path, mem: VoxelMemory, occ: OccupancyParams, sem: SemanticParams | None = None) -> dict:
+    """Write prediction.npz and map.ply; return counts of occupied / free / classed voxels.
+
+    The occupied set comes from the geometry alone; with semantics, each occupied voxel is labelled by
+    :func:`semantic.label_occupied` (GSC or raw argmax, bounded nearest-evidence transfer), -1 -> 254.
+    map.ply colours (``sem.ply_color``): ``class`` = class colour (grey for 254), ``rgb`` = mean pixel
+    colour (grey where no pixel fell in the voxel), ``height``; without semantic channels, height.
+    """
+    from .semantic import UNCLASSED_COLOR, apply_labels, class_colors, label_occupied
+
+    sem = sem or SemanticParams(segmenter="none", vocab=[])
     keys, ch = mem.nonzero()
     grid, occ_keys = memory_to_grid(keys, ch, mem.voxel_size, occ)
+    pos = np.searchsorted(keys, occ_keys)
+    summary = {"occupied": int(len(occ_keys)), "free": int((grid.labels == 0).sum())}
+    labels = None
+    if sem.enabled and "E" in ch:
+        _, _, g = classify(ch["A"], ch["N"], ch["F"], ch["O"], occ)
+        sub = {k: ch[k][pos] for k in ("E", "S", "rgb_sum", "normal_sum", "count")}
+        labels = label_occupied(occ_keys, sub, g[pos], sem)
+        grid = apply_labels(grid, occ_keys, labels, sem.vocab)
+        summary["classed"] = int((labels >= 0).sum())
     write_grid(out / "prediction.npz", grid)
-    rgb = None
-    if "rgb_sum" in ch and "count" in ch:
-        pos = np.searchsorted(keys, occ_keys)
-        cnt = np.maximum(ch["count"][pos, :1], 1)
-        rgb = ch["rgb_sum"][pos] / cnt
-    pts, cols = occupied_points_and_colors(occ_keys, mem.voxel_size, rgb)
+    pts, cols = occupied_points_and_colors(occ_keys, mem.voxel_size, None)
+    if sem.ply_color == "class" and labels is not None:
+        cols = class_colors(labels, sem.vocab)
+    elif sem.ply_color == "rgb" and "rgb_sum" in ch:
+        cnt = ch["count"][pos, :1]
+        rgb = np.clip(np.rint(ch["rgb_sum"][pos] / np.maximum(cnt, 1)), 0, 255).astype(np.uint8)
+        cols = np.where(cnt > 0, rgb, np.array(UNCLASSED_COLOR, np.uint8))
     write_ply_points(out / "map.ply", pts, cols)
-    return {"occupied": int(len(occ_keys)), "free": int((grid.labels == 0).sum())}
+    return summary
 
 
 class _BackgroundWriter:
@@ -294,7 +356,7 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         out = Path(resume_out)
         cfg = load_config(out)
         seq = _open_sequence(cfg)
-        contributors = contributors or [geometry_contributor(cfg.geometry)]
+        contributors = contributors or build_contributors(cfg, seq)
         if (out / MEMORY_NAME).is_file():
             mem, start, saved_poses = load_memory(out)
             if len(saved_poses) != len(seq) or not np.array_equal(saved_poses, seq.poses):
@@ -306,6 +368,9 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
             raise ValueError("run_map needs a config or resume_out")
         seq = _open_sequence(cfg)
         cfg = resolve(cfg, seq.meta.width)
+        cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
+        if contributors is None:
+            contributors = build_contributors(cfg, seq)  # builds the segmenter: fails before any file is written
         out = Path(cfg.out)
         if out.exists() and not out.is_dir():
             raise PanovoccError("output path exists and is not a folder", out)
@@ -317,7 +382,6 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
                 (out / name).unlink(missing_ok=True)
             shutil.rmtree(out / "deltas", ignore_errors=True)
         out.mkdir(parents=True, exist_ok=True)
-        contributors = contributors or [geometry_contributor(cfg.geometry)]
         write_text(out / CONFIG_NAME, json.dumps(cfg.to_json(), indent=2) + "\n")
         write_poses(out / "poses.txt", seq.poses)
         mem, start = VoxelMemory(cfg.geometry.voxel_size, memory_channels(contributors)), 0
@@ -354,7 +418,7 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         summary.update(stopped_at=done)
         return summary
     save_memory(out, mem, n, seq.poses)
-    summary.update(export(out, mem, cfg.occupancy))
+    summary.update(export(out, mem, cfg.occupancy, cfg.semantic))
     return summary
 
 
@@ -382,7 +446,7 @@ def run_revise(out: str | Path, poses_path: str | Path, progress: bool = True,
     seq = Sequence(cfg.seq, cfg.poses)
     if len(seq) != len(old_poses):
         raise PanovoccError(f"sequence now has {len(seq)} frames, the map has {len(old_poses)}", cfg.seq)
-    contributors = contributors or [geometry_contributor(cfg.geometry)]
+    contributors = contributors or build_contributors(cfg, seq)
     changed = [i for i in range(len(new_poses)) if not np.array_equal(new_poses[i], old_poses[i])]
     from tqdm import tqdm
 
@@ -402,7 +466,7 @@ def run_revise(out: str | Path, poses_path: str | Path, progress: bool = True,
         tmp.replace(p)
     write_poses(out / "poses.txt", new_poses)
     summary = {"frames": len(new_poses), "revised": len(changed), "seconds": time.perf_counter() - t0}
-    summary.update(export(out, mem, cfg.occupancy))
+    summary.update(export(out, mem, cfg.occupancy, cfg.semantic))
     return summary
 
 

@@ -1,0 +1,319 @@
+"""The semantic side of ``panovocc map``: a per-frame semantic contributor and the labelled export.
+
+Per frame, the segmenter (``simulated`` or ``precomputed:DIR``) gives logits over the run's vocabulary;
+:func:`semantics.evidence.frame_semantic_delta` turns them into sparse per-voxel sums, which are
+quantised into memory channels and travel through the SAME delta mechanism as the geometry (delta
+files, ``revise``, ``--resume``: the memory stays the exact integer sum of the retained deltas).
+
+Channels (``C`` = vocabulary size):
+
+==============  =====  ======  ============================================================
+name            width  kind    content
+==============  =====  ======  ============================================================
+``E``           C      fixed   sum of eta * p (2^-16 resolution)
+``S``           1      fixed   sum of eta
+``rgb_sum``     3      int     plain sum of pixel colours (0..255 integers: exact as integers)
+``normal_sum``  3      fixed   plain sum of unit normals
+``count``       1      int     pixels (measurements)
+==============  =====  ======  ============================================================
+
+Overflow: eta <= 1 and |p|, |n| <= 1, so a frame adds at most (pixels in the voxel) * 2^16 to an E, S
+or normal_sum entry. Even a whole 2048x1024 frame falling into one voxel adds 2^37; int64 holds 2^63,
+i.e. 2^26 (67 million) such frames. Rounding error: at most 2^-17 per entry per frame (the per-frame
+sum is rounded once), far below a single pixel's weight.
+
+Export (:func:`label_occupied`): the occupied set comes from the geometry alone; over it,
+``gsc.unaries`` (E/S, mean normal, mean colour), the mapper's signed score ``g`` and
+``gsc.consolidate`` give a vocabulary index or -1 (grid label 254).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence as Seq
+
+import numpy as np
+
+from ..config import DEFAULT_SEED
+from ..errors import PanovoccError
+from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..semantics.evidence import EvidenceWeights
+from ..semantics.gsc import GSCParams
+from .memory import ChannelSpec, Delta, quantize
+
+SEGMENTER_NONE = "none"
+SEGMENTER_AUTO = "auto"
+PLY_COLORS = ("class", "rgb", "height")
+UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
+
+
+def mapper_gsc_params() -> GSCParams:
+    """GSC parameters of ``panovocc map``: the library defaults with stronger spatial regularisation.
+
+    ``lambda_s = 8`` and ``iterations = 20`` (library: 1 and 10), tuned on the synthetic scene of seed 0
+    and checked on seed 1 (docs/mapping.md, "Semantic memory"). ``s_g = 0.5`` is kept: the mapper's
+    signed score g is in per-frame support units (about 0.1..1 on surfaces), the scale GSC assumes,
+    and the result is flat in s_g over 0.25..2.
+    """
+    return GSCParams(lambda_s=8.0, iterations=20)
+
+
+@dataclass
+class SemanticParams:
+    """Semantic part of a map's configuration (saved in ``OUT/config.json``).
+
+    segmenter : ``auto`` (simulated when the sequence has labels, else an error), ``simulated``,
+        ``precomputed:DIR`` or ``none`` (geometry only: every occupied voxel 254)
+    vocab : vocabulary spec (``eval8,open4``, ``a,b,c``; None = eval8 + open4) before :func:`resolve`,
+        the list of canonical names after it
+    noise, seed : the simulated segmenter's noise level (0 = exact) and seed
+    use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
+    ply_color : colours of map.ply: ``class`` (class colours, grey for 254), ``rgb`` (mean pixel colour),
+        ``height``
+    """
+
+    segmenter: str = SEGMENTER_AUTO
+    vocab: object = None
+    noise: float = 1.0
+    seed: int = DEFAULT_SEED
+    use_gsc: bool = True
+    ply_color: str = "class"
+    gsc: GSCParams = field(default_factory=mapper_gsc_params)
+    weights: EvidenceWeights = field(default_factory=EvidenceWeights)
+
+    @property
+    def enabled(self) -> bool:
+        return self.segmenter != SEGMENTER_NONE
+
+    @classmethod
+    def from_json(cls, d: dict | None) -> "SemanticParams":
+        """Inverse of ``dataclasses.asdict``; a config without a semantic section is a geometry-only map."""
+        if d is None:
+            return cls(segmenter=SEGMENTER_NONE, vocab=[])
+        d = dict(d)
+        gsc = dataclasses.replace(mapper_gsc_params(), **d.pop("gsc", {}))
+        weights = EvidenceWeights(**d.pop("weights", {}))
+        return cls(gsc=gsc, weights=weights, **d)
+
+
+def resolve(p: SemanticParams, seq) -> SemanticParams:
+    """Resolve ``auto``, the vocabulary and a precomputed folder; validate everything before any file is written.
+
+    Parameters
+    ----------
+    p : SemanticParams as given by the user
+    seq : io.sequence.Sequence, the sequence to be mapped
+
+    Raises
+    ------
+    PanovoccError
+        Empty/invalid vocabulary, unknown segmenter, negative noise, ``simulated`` (or ``auto``) on a
+        sequence without ``semantic/`` labels, a precomputed folder that fails validation, bad ply_color.
+    """
+    from ..semantics.segmenter import make_segmenter, parse_vocab
+
+    if p.ply_color not in PLY_COLORS:
+        raise PanovoccError(f"--ply-color must be one of {', '.join(PLY_COLORS)}, got {p.ply_color!r}")
+    vocab = parse_vocab(p.vocab)  # an empty vocabulary is an error even for --segmenter none
+    spec = p.segmenter.strip()
+    if spec == SEGMENTER_AUTO:
+        if not seq.has_labels:
+            raise PanovoccError("the sequence has no ground-truth labels (semantic/) for the default simulated "
+                                "segmenter: pass --segmenter precomputed:DIR, or --segmenter none for geometry only",
+                                seq.root)
+        spec = "simulated"
+    if spec == SEGMENTER_NONE:
+        return dataclasses.replace(p, segmenter=SEGMENTER_NONE, vocab=[])
+    if spec == "simulated" and not seq.has_labels:
+        raise PanovoccError("the simulated segmenter needs ground-truth labels (semantic/), which this sequence "
+                            "lacks: pass --segmenter precomputed:DIR or --segmenter none", seq.root)
+    if spec.startswith("precomputed:"):
+        folder = spec[len("precomputed:"):]
+        spec = "precomputed:" + (str(Path(folder).resolve()) if folder else "")
+    seg = make_segmenter(spec, seed=int(p.seed), noise=float(p.noise))  # validates spec, noise, folder
+    return dataclasses.replace(p, segmenter=seg.spec or spec, vocab=list(vocab))
+
+
+def semantic_channels(n_classes: int) -> tuple[ChannelSpec, ...]:
+    """Memory channels of the semantic contributor for a vocabulary of ``n_classes`` words."""
+    return (ChannelSpec("E", n_classes, "fixed"), ChannelSpec("S", 1, "fixed"), ChannelSpec("rgb_sum", 3, "int"),
+            ChannelSpec("normal_sum", 3, "fixed"), ChannelSpec("count", 1, "int"))
+
+
+def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
+    """Float sums of :func:`semantics.evidence.frame_semantic_delta` -> integer :class:`Delta`.
+
+    keys : (n,) int64 sorted unique; channels : E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3)
+    float64, count (n,) int64
+    """
+    return Delta(keys, {"E": quantize(channels["E"], "fixed"), "S": quantize(channels["S"], "fixed"),
+                        "rgb_sum": quantize(channels["rgb_sum"], "int"),
+                        "normal_sum": quantize(channels["normal_sum"], "fixed"),
+                        "count": np.asarray(channels["count"], np.int64)})
+
+
+def semantic_frame(frame, segmenter, vocab: Seq[str], voxel_size: float, weights: EvidenceWeights,
+                   min_range: float, max_range: float, rays: np.ndarray | None = None) -> Delta:
+    """One frame's quantised semantic delta.
+
+    Depths outside ``[min_range, max_range]`` (metres) are ignored, as in the geometry contributor.
+    The segmenter sees the frame's ground-truth labels and the sequence's class names (the simulated
+    segmenter needs them; real ones ignore them).
+    """
+    from ..semantics.evidence import frame_semantic_delta
+    from ..semantics.segmenter import FrameContext
+
+    seq = frame.seq
+    rgb = frame.rgb
+    depth = frame.depth
+    depth = np.where((depth >= min_range) & (depth <= max_range), depth, 0.0).astype(np.float32)
+    ctx = FrameContext(seq.labels(frame.index), seq.meta.class_names)
+    logits = segmenter.logits(rgb, list(vocab), frame.index, ctx)
+    keys, ch = frame_semantic_delta(depth, rgb, logits, frame.T_world_cam, voxel_size, weights, rays)
+    return quantize_semantic_delta(keys, ch)
+
+
+def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params: SemanticParams) -> np.ndarray:
+    """Vocabulary index of each occupied voxel, or -1 (no class; exported as 254).
+
+    Parameters
+    ----------
+    occupied_keys : (n,) int64 voxel keys (lattice.pack_keys)
+    channels : dict of the occupied voxels' stored channels, rows aligned with ``occupied_keys``:
+        E (n, C), S (n, 1), normal_sum (n, 3) fixed point; rgb_sum (n, 3), count (n, 1) int64
+    g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
+    params : SemanticParams (use_gsc, gsc)
+
+    Returns
+    -------
+    labels : (n,) int64 in -1..C-1
+    """
+    from ..geometry.lattice import unpack_keys
+    from ..semantics.gsc import consolidate, unaries
+    from .memory import FIXED_SCALE
+
+    n = len(occupied_keys)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    E = channels["E"] / FIXED_SCALE
+    S = channels["S"][:, 0] / FIXED_SCALE
+    p, normals, colors = unaries(E, S, channels["normal_sum"] / FIXED_SCALE, channels["rgb_sum"], channels["count"][:, 0])
+    return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
+                       use_gsc=params.use_gsc, params=params.gsc)
+
+
+def apply_labels(grid: Grid, occupied_keys: np.ndarray, labels: np.ndarray, vocab: Seq[str]) -> Grid:
+    """Write class labels into a three-state grid: occupied voxel -> 1 + label (254 where -1).
+
+    The grid's class names become ``["empty"] + vocab``; free (0) and unobserved (255) voxels stay.
+    """
+    from ..geometry.lattice import unpack_keys
+
+    out = grid.labels.copy()
+    if len(occupied_keys):
+        local = unpack_keys(occupied_keys) - grid.index0
+        lab = np.asarray(labels, np.int64)
+        out[tuple(local.T)] = np.where(lab >= 0, lab + 1, OCCUPIED_UNKNOWN_CLASS).astype(np.uint8)
+    return Grid(out, grid.origin, grid.voxel_size, ["empty"] + list(vocab))
+
+
+def class_colors(labels: np.ndarray, vocab: Seq[str]) -> np.ndarray:
+    """(n, 3) uint8 colours: :func:`classes.class_color` of each label, grey for -1."""
+    from ..classes import class_color
+
+    table = np.array([class_color(c) for c in vocab] + [UNCLASSED_COLOR], np.uint8).reshape(-1, 3)
+    lab = np.asarray(labels, np.int64)
+    return table[np.where(lab >= 0, lab, len(vocab))]
+
+
+# ---------------------------------------------------------------------------------------------
+# Reference and diagnostics
+
+
+def relabel_from_ground_truth(pred: Grid, gt: Grid, max_dist_vox: float = 0.0) -> Grid:
+    """Reference "perfect labels" for a prediction's geometry: its occupied voxels labelled by the truth.
+
+    Each occupied voxel of ``pred`` (label not 0/255) takes the ground-truth class at the same voxel when
+    the truth has a class there (1..253). Elsewhere (the truth says empty, unknown or 254, or does not
+    cover the voxel: a geometric false positive) it takes the class of the nearest ground-truth class
+    voxel within ``max_dist_vox`` voxels (Euclidean), else 254.
+
+    * ``max_dist_vox = 0``: the ceiling of any labelling of this occupied set under the FreeOcc protocol
+      (a voxel the truth does not hold gets no class, so it adds no class false positive);
+    * ``max_dist_vox = 2`` (the mapper's own transfer bound): what per-pixel ground-truth labels binned
+      into the voxels give; a voxel of a thickened surface takes the class of the surface it belongs to,
+      exactly as the mapper labels it from the pixels that fell into it.
+
+    Free and unobserved voxels are unchanged.
+
+    Parameters
+    ----------
+    pred, gt : Grid on the same lattice (same voxel size)
+    max_dist_vox : float >= 0, voxels
+
+    Returns
+    -------
+    Grid, ``pred``'s box, class names = ``gt.class_names``
+    """
+    from scipy.spatial import cKDTree
+
+    from ..evaluation.align import check_same_voxel_size, resample_onto
+
+    check_same_voxel_size(pred, gt, "prediction and ground truth")
+    truth = resample_onto(gt, pred, fill=UNKNOWN)
+    occ = (pred.labels != EMPTY) & (pred.labels != UNKNOWN)
+    has_class = (truth != EMPTY) & (truth != UNKNOWN) & (truth != OCCUPIED_UNKNOWN_CLASS)
+    out = pred.labels.copy()
+    out[occ] = np.where(has_class[occ], truth[occ], OCCUPIED_UNKNOWN_CLASS)
+    need = np.argwhere(occ & ~has_class)
+    src = np.argwhere((gt.labels != EMPTY) & (gt.labels != UNKNOWN) & (gt.labels != OCCUPIED_UNKNOWN_CLASS))
+    if max_dist_vox > 0 and len(need) and len(src):
+        tree = cKDTree((src + gt.index0).astype(np.float64))
+        dist, nn = tree.query((need + pred.index0).astype(np.float64), k=1,
+                              distance_upper_bound=float(max_dist_vox) + 1e-9)
+        ok = np.isfinite(dist)
+        s_ijk = src[nn[ok]]
+        out[tuple(need[ok].T)] = gt.labels[tuple(s_ijk.T)]
+    return Grid(out, pred.origin, pred.voxel_size, list(gt.class_names))
+
+
+@dataclass
+class SegevalConfig:
+    """``panovocc segeval``: the segmenter's own per-frame 2D mIoU on a labelled sequence."""
+
+    seq: str
+    segmenter: str = "simulated"
+    vocab: object = None
+    noise: float = 1.0
+    seed: int = DEFAULT_SEED
+    classes: str = "eval8"
+    every: int = 1  # score frames 0, every, 2 every, ...
+
+
+def run_segeval(cfg: SegevalConfig, progress: bool = True):
+    """Pooled 2D mIoU of the segmenter over frames ``0, every, 2 every, ...`` of ``cfg.seq``.
+
+    Returns
+    -------
+    (Miou2D, frames) : the pooled result (.miou, .iou, .accuracy) and the scored frame indices
+    """
+    from ..classes import parse_class_set
+    from ..io.sequence import Sequence
+    from ..semantics.metrics2d import segmenter_2d_miou
+    from ..semantics.segmenter import make_segmenter, parse_vocab
+
+    if cfg.every < 1:
+        raise PanovoccError(f"--every must be >= 1, got {cfg.every}")
+    seq = Sequence(cfg.seq)
+    if not seq.has_labels:
+        raise PanovoccError("segeval needs ground-truth labels (semantic/)", seq.root)
+    vocab = parse_vocab(cfg.vocab)
+    classes = parse_class_set(cfg.classes)
+    spec = cfg.segmenter.strip()
+    if spec == SEGMENTER_AUTO:
+        spec = "simulated"
+    seg = make_segmenter(spec, seed=int(cfg.seed), noise=float(cfg.noise))
+    frames = list(range(0, len(seq), cfg.every))
+    return segmenter_2d_miou(seq, seg, vocab, classes=classes, frames=frames, progress=progress), frames

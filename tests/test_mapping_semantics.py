@@ -1,0 +1,264 @@
+"""Semantic mapping: labelled occupied voxels, exact revise/resume with semantics, vocabularies, CLI."""
+
+import json
+
+import numpy as np
+import pytest
+from semantics_helpers import CLASS_NAMES, pose, render_room
+
+from panovocc_cli.io.grid import Grid, read_grid
+from panovocc_cli.io.poses import write_poses
+from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
+from panovocc_cli.mapping.contributors import GeometryParams
+from panovocc_cli.mapping.memory import FIXED_SCALE
+from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
+from panovocc_cli.mapping.semantic import SemanticParams, relabel_from_ground_truth
+
+W = 128
+N = 6
+
+
+def _poses(n):
+    return np.stack([pose((0.8 * np.sin(2 * np.pi * i / n), 1.0 * np.cos(2 * np.pi * i / n), 1.4), yaw=0.9 * i)
+                     for i in range(n)])
+
+
+@pytest.fixture(scope="module")
+def sem_seq(tmp_path_factory):
+    """The furnished room of semantics_helpers (walls at x = +-2.5, y = +-3), labelled, 128x64, 6 frames."""
+    seq = tmp_path_factory.mktemp("semseq") / "room"
+    poses = _poses(N)
+    for i, T in enumerate(poses):
+        lab, d, rgb = render_room(W, T)
+        write_frame(seq, i, rgb, d, lab)
+    write_meta(seq, SequenceMeta(width=W, height=W // 2, frames=N, class_names=CLASS_NAMES))
+    write_sequence_poses(seq, poses)
+    return seq
+
+
+@pytest.fixture(scope="module")
+def default_map(sem_seq, tmp_path_factory):
+    out = tmp_path_factory.mktemp("defmap") / "m"
+    s = run_map(_cfg(sem_seq, out), progress=False)
+    return out, s
+
+
+def _cfg(seq, out, **sem):
+    return MapConfig(seq=str(seq), out=str(out), checkpoint_every=2, geometry=GeometryParams(),
+                     semantic=SemanticParams(**sem))
+
+
+def _bytes(out):
+    return {n: (out / n).read_bytes() for n in ("memory.npz", "prediction.npz", "map.ply")}
+
+
+def _centres(g: Grid):
+    return g.centers(np.argwhere(np.ones(g.labels.shape, bool))).reshape(g.labels.shape + (3,))
+
+
+def _clean_wall(g: Grid):
+    """Occupied voxels on the bare part of the wall x = -2.5 (y in [-1, 0.5], z in [0.8, 2.2])."""
+    c = _centres(g)
+    band = (np.abs(c[..., 0] + 2.5) < 0.09) & (c[..., 1] > -1.0) & (c[..., 1] < 0.5) & (c[..., 2] > 0.8) \
+        & (c[..., 2] < 2.2)
+    return band & (g.labels != 0) & (g.labels != 255)
+
+
+def test_noisy_wall_ends_up_wall(default_map):
+    out, s = default_map
+    g = read_grid(out / "prediction.npz")
+    assert list(g.class_names[1:]) == ["ceiling", "floor", "wall", "window", "chair", "bed", "sofa", "table",
+                                       "curtain", "door", "tv", "lighting"]
+    wall = _clean_wall(g)
+    assert wall.sum() > 40
+    assert np.mean(g.labels[wall] == g.class_names.index("wall")) > 0.9
+    occ = (g.labels != 0) & (g.labels != 255)
+    assert occ.sum() == s["occupied"] and 0.8 * s["occupied"] < s["classed"] <= s["occupied"]
+    assert np.count_nonzero(occ & (g.labels != 254)) == s["classed"]
+    # the ceiling plane (z = 2.6) is ceiling
+    c = _centres(g)
+    ceil = occ & (np.abs(c[..., 2] - 2.6) < 0.09) & (np.abs(c[..., 0]) < 2) & (np.abs(c[..., 1]) < 2.5) \
+        & ~((np.abs(c[..., 0]) < 0.4) & (np.abs(c[..., 1]) < 0.4))  # the lamp hangs there
+    assert np.mean(g.labels[ceil] == g.class_names.index("ceiling")) > 0.9
+    import open3d as o3d
+
+    pc = o3d.io.read_point_cloud(str(out / "map.ply"))
+    cols = np.rint(np.asarray(pc.colors) * 255).astype(int)
+    assert len(cols) == s["occupied"]
+    from panovocc_cli.classes import class_color
+
+    assert np.mean(np.all(cols == class_color("wall"), axis=1)) > 0.2  # class colours, walls most common
+
+
+def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
+    """E and S in the memory = the float sums of the per-frame evidence, to the fixed-point resolution."""
+    from panovocc_cli.io.sequence import Sequence
+    from panovocc_cli.semantics.evidence import frame_semantic_delta
+    from panovocc_cli.semantics.segmenter import FrameContext, make_segmenter, parse_vocab
+
+    out, _ = default_map
+    mem, _, _ = load_memory(out)
+    seq = Sequence(sem_seq)
+    seg, vocab = make_segmenter("simulated"), parse_vocab()
+    acc = {}
+    for i in range(N):
+        logits = seg.logits(seq.rgb(i), vocab, i, FrameContext(seq.labels(i), seq.meta.class_names))
+        keys, ch = frame_semantic_delta(seq.depth(i), seq.rgb(i), logits, seq.poses[i], 0.08)
+        for k, e, s in zip(keys, ch["E"], ch["S"]):
+            a = acc.setdefault(int(k), [np.zeros(len(vocab)), 0.0])
+            a[0] += e
+            a[1] += s
+    keys = np.array(sorted(acc), np.int64)
+    got = mem.gather(keys)
+    E = np.stack([acc[int(k)][0] for k in keys])
+    S = np.array([acc[int(k)][1] for k in keys])
+    tol = N * 0.5 / FIXED_SCALE + 1e-9
+    assert np.abs(got["E"] / FIXED_SCALE - E).max() <= tol
+    assert np.abs(got["S"][:, 0] / FIXED_SCALE - S).max() <= tol
+    assert np.all(got["count"][:, 0] > 0)
+
+
+def test_revise_and_resume_exact_with_semantics(sem_seq, default_map, tmp_path):
+    direct, _ = default_map
+    true = _poses(N)
+    wrong = true.copy()
+    rng = np.random.default_rng(5)
+    for i in (1, 4):
+        a = rng.normal(0, 0.1)
+        c, s = np.cos(a), np.sin(a)
+        wrong[i, :3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ wrong[i, :3, :3]
+        wrong[i, :3, 3] += rng.normal(0, 0.15, 3)
+    write_poses(tmp_path / "wrong.txt", wrong)
+    rev = tmp_path / "rev"
+    run_map(MapConfig(seq=str(sem_seq), out=str(rev), checkpoint_every=2, poses=str(tmp_path / "wrong.txt")),
+            progress=False)
+    assert (rev / "prediction.npz").read_bytes() != (direct / "prediction.npz").read_bytes()
+    with np.load(rev / "deltas" / "000001.npz") as z:
+        assert {"ch_E", "ch_S", "ch_rgb_sum", "ch_normal_sum", "ch_count", "ch_A"} <= set(z.files)
+    s = run_revise(rev, sem_seq / "poses.txt", progress=False)
+    assert s["revised"] == 2
+    assert _bytes(rev) == _bytes(direct)
+    # killed after frame 3 (checkpoint at 2), resumed: the same bytes as the uninterrupted run
+    part = tmp_path / "part"
+    st = run_map(_cfg(sem_seq, part), progress=False, stop_after=3)
+    assert st["stopped_at"] == 3 and load_memory(part)[1] == 2
+    run_map(resume_out=part, progress=False)
+    assert _bytes(part) == _bytes(direct)
+
+
+def test_one_class_and_unknown_word_vocabularies(sem_seq, default_map, tmp_path):
+    _, s_def = default_map
+    s = run_map(_cfg(sem_seq, tmp_path / "one", vocab="chair"), progress=False)
+    g = read_grid(tmp_path / "one" / "prediction.npz")
+    assert list(g.class_names) == ["empty", "chair"]
+    occ = (g.labels != 0) & (g.labels != 255)
+    assert set(np.unique(g.labels[occ]).tolist()) <= {1, 254}
+    # every voxel with evidence (or within the transfer bound of one) is labelled: the same set as 12 classes
+    assert s["classed"] == s_def["classed"] and s["occupied"] == s_def["occupied"]
+    s = run_map(_cfg(sem_seq, tmp_path / "unk", vocab="spaceship,banana"), progress=False)
+    g = read_grid(tmp_path / "unk" / "prediction.npz")
+    assert list(g.class_names) == ["empty", "spaceship", "banana"]
+    occ = (g.labels != 0) & (g.labels != 255)
+    assert set(np.unique(g.labels[occ]).tolist()) <= {1, 2, 254} and s["occupied"] == s_def["occupied"]
+    # a known word among unknown ones still finds its voxels
+    run_map(_cfg(sem_seq, tmp_path / "mix", vocab="spaceship,wall"), progress=False)
+    g = read_grid(tmp_path / "mix" / "prediction.npz")
+    assert np.mean(g.labels[_clean_wall(g)] == 2) > 0.9
+
+
+def test_relabel_from_ground_truth_closed_form():
+    h = 0.08
+    gt_lab = np.full((4, 3, 2), 255, np.uint8)
+    gt_lab[0] = 0
+    gt_lab[1, :, :] = 2  # wall
+    gt_lab[2, 0, 0] = 254
+    gt = Grid(gt_lab, np.array([0.04, 0.04, 0.04]), h, ["empty", "floor", "wall"])
+    # prediction shifted by one voxel along x, one voxel beyond the truth's box
+    p = np.full((4, 3, 2), 255, np.uint8)
+    p[0, :, :] = 254  # x index 1 in the truth: wall
+    p[1, 0, 0] = 7  # x index 2: truth 254 -> 254
+    p[1, 1, 0] = 0  # free stays free
+    p[3, :, :] = 3  # x index 4: outside the truth -> 254
+    pred = Grid(p, np.array([0.12, 0.04, 0.04]), h, ["empty"] + [f"c{k}" for k in range(1, 8)])
+    r = relabel_from_ground_truth(pred, gt)
+    assert list(r.class_names) == ["empty", "floor", "wall"]
+    assert np.all(r.labels[0] == 2) and r.labels[1, 0, 0] == 254 and r.labels[1, 1, 0] == 0
+    assert np.all(r.labels[3] == 254) and r.labels[2, 0, 0] == 255
+
+
+def _cli(capsys):
+    from panovocc_cli.cli import main
+
+    def run(*args):
+        with pytest.raises(SystemExit) as e:
+            main([str(a) for a in args])
+        return e.value.code, capsys.readouterr()
+
+    return run
+
+
+def test_cli_semantic_map_no_gsc_precomputed_segeval(sem_seq, tmp_path, capsys):
+    run = _cli(capsys)
+    o = tmp_path / "ng"
+    code, io = run("map", sem_seq, o, "--quiet", "--vocab", "eval8", "--noise", "0.5", "--seed", "3", "--no-gsc",
+                   "--ply-color", "rgb")
+    assert code == 0 and "with a class" in io.out
+    cfg = json.loads((o / "config.json").read_text())["semantic"]
+    assert cfg["segmenter"] == "simulated" and cfg["use_gsc"] is False and cfg["noise"] == 0.5 and cfg["seed"] == 3
+    assert cfg["vocab"] == ["ceiling", "floor", "wall", "window", "chair", "bed", "sofa", "table"]
+    g = read_grid(o / "prediction.npz")
+    assert len(g.class_names) == 9 and np.mean(g.labels[_clean_wall(g)] == 3) > 0.8
+    code, io = run("revise", o, sem_seq / "poses.txt", "--quiet")
+    assert code == 0 and "revised 0 of 6" in io.out
+    code, io = run("map", "--resume", o, "--vocab", "chair", "--quiet")
+    assert code == 2 and "--vocab" in io.err and len(io.err.strip().splitlines()) == 1
+    # an empty vocabulary: exit 2, one line, nothing written
+    code, io = run("map", sem_seq, tmp_path / "e", "--vocab", " , ", "--quiet")
+    assert code == 2 and "vocabulary" in io.err and len(io.err.strip().splitlines()) == 1
+    assert not (tmp_path / "e").exists()
+    code, io = run("map", sem_seq, tmp_path / "e", "--segmenter", "oracle", "--quiet")
+    assert code == 2 and not (tmp_path / "e").exists()
+    code, io = run("map", sem_seq, tmp_path / "e", "--noise", "-1", "--quiet")
+    assert code == 2 and not (tmp_path / "e").exists()
+    # a precomputed segmenter: exact labels written as label PNGs over another vocabulary
+    from panovocc_cli.io.sequence import Sequence
+    from panovocc_cli.semantics.precomputed import write_precomputed_labels
+
+    seq = Sequence(sem_seq)
+    words = ["wall", "floor", "ceiling", "bed"]
+    lut = np.array([words.index(c) if c in words else 255 for c in CLASS_NAMES], np.int64)
+    for i in range(N):
+        write_precomputed_labels(tmp_path / "pre", i, lut[seq.labels(i)], words)
+    o = tmp_path / "pre_map"
+    code, io = run("map", sem_seq, o, "--segmenter", f"precomputed:{tmp_path / 'pre'}", "--vocab", "wall,floor,bed",
+                   "--quiet")
+    assert code == 0
+    g = read_grid(o / "prediction.npz")
+    assert list(g.class_names) == ["empty", "wall", "floor", "bed"] and np.mean(g.labels[_clean_wall(g)] == 1) > 0.95
+    assert json.loads((o / "config.json").read_text())["semantic"]["segmenter"] == f"precomputed:{tmp_path / 'pre'}"
+    code, io = run("segeval", sem_seq, "--every", "2", "--quiet")
+    assert code == 0 and "pooled over 3 frames" in io.out and "wall" in io.out
+    code, io = run("segeval", sem_seq, "--noise", "0", "--classes", "wall,bed", "--quiet")
+    assert code == 0 and "2D mIoU (wall,bed" in io.out
+    miou = float(io.out.split("frames): ")[1].split("%")[0])
+    assert miou > 90  # exact segmenter: only out-of-vocabulary confusions remain
+    code, io = run("segeval", sem_seq, "--every", "0", "--quiet")
+    assert code == 2
+
+
+def test_cli_unlabelled_sequence_needs_a_segmenter(tmp_path, capsys):
+    from panovocc_cli.mapping.synthetic import write_room_sequence
+
+    run = _cli(capsys)
+    seq = tmp_path / "plain"
+    write_room_sequence(seq, 3, 64, furniture=False)
+    code, io = run("map", seq, tmp_path / "o", "--quiet")
+    assert code == 2 and "--segmenter none" in io.err and not (tmp_path / "o").exists()
+    code, io = run("map", seq, tmp_path / "o", "--segmenter", "simulated", "--quiet")
+    assert code == 2 and "labels" in io.err and not (tmp_path / "o").exists()
+    code, io = run("map", seq, tmp_path / "o", "--segmenter", "none", "--quiet")
+    assert code == 0 and "with a class" not in io.out
+    g = read_grid(tmp_path / "o" / "prediction.npz")
+    assert list(g.class_names) == ["empty"] and set(np.unique(g.labels).tolist()) == {0, 254, 255}
+    code, io = run("segeval", seq, "--quiet")
+    assert code == 2 and "semantic/" in io.err
