@@ -6,6 +6,7 @@ from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
 from panovocc_cli.mapping.contributors import GeometryParams, geometry_delta
 from panovocc_cli.mapping.freespace import carve
+from panovocc_cli.mapping.memory import FIXED_SCALE
 from panovocc_cli.mapping.psvf import kernel_inverse_cov, kernel_params, lift_kernels, measurement_weight, splat
 
 LO, HI = np.array([-2.0, -1.5, -1.2]), np.array([2.0, 1.5, 1.6])  # box room around a camera at the origin
@@ -109,8 +110,54 @@ def test_geometry_delta_supports_walls_and_carves_interior():
         c = index_to_center(unpack_keys(d.keys), h)
         margin = np.minimum(c - LO, HI - c).min(axis=-1)
         A = d.channels["A"][:, 0]
-        assert np.all((d.channels["N"][:, 0] > 0) == (A > 0))
+        # a frame counts in N exactly where its support exceeds the n_min floor
+        assert np.all((d.channels["N"][:, 0] > 0) == (A > np.floor(GeometryParams().n_min * FIXED_SCALE)))
         assert np.all(np.abs(margin[A > 0]) < 0.16)  # support only near the walls
         on_wall = np.abs(margin) < h / 2
         assert (A[on_wall] > 0).mean() > 0.95  # and the walls are supported
         assert not np.any((d.channels["F"][:, 0] > 0) & (A > 0) & (np.abs(margin) < h / 2))
+
+
+def test_box_extent_kernel_closed_form():
+    """extent=box: tangential Gaussian times P(ray coordinate inside the voxel's chord through its centre)."""
+    from math import erf
+
+    h, kappa, s_r = 0.08, 2.0, 0.02
+    W = 256
+    depth = np.zeros((W // 2, W), np.float32)
+    depth[W // 4 + 2, W // 2 + 2] = 2.0
+    x, P, half, w = lift_kernels(depth, np.eye(4), 1, 0.0, s_r, 0.1, 12.0, 1.0, 1e9, 1.0)
+    assert np.all(kappa * half[0] + h < 4 * h)  # the 9^3 grid holds the whole kernel
+    er = x / np.linalg.norm(x, axis=1, keepdims=True)
+    sr = np.full(1, s_r)
+    lo = np.floor(x[0] / h).astype(np.int64) - 4
+    A = splat(x, P, half, w, kappa, h, lo, (9, 9, 9), "box", er, sr)
+    ijk = np.argwhere(np.ones((9, 9, 9), bool))
+    c = index_to_center(ijk + lo, h) - x[0]
+    dr = c @ er[0]
+    d2t = np.einsum("ni,ij,nj->n", c, P[0], c) - (dr / s_r) ** 2
+    b = 0.5 * h / np.abs(er[0]).max()
+    pbox = np.array([0.5 * (erf((b - v) / (np.sqrt(2) * s_r)) + erf((b + v) / (np.sqrt(2) * s_r))) for v in dr])
+    want = np.where((d2t <= kappa ** 2) & (np.abs(dr) <= b + kappa * s_r), np.exp(-0.5 * d2t) * pbox, 0.0)
+    np.testing.assert_allclose(A[tuple(ijk.T)], want, rtol=1e-7, atol=1e-12)
+    # the voxel containing the point gets at least half its weight, whatever the radial scale
+    k = tuple(np.floor(x[0] / h).astype(np.int64) - lo)
+    assert A[k] >= 0.5 * np.exp(-0.5 * 3 * (h / 2) ** 2 * np.linalg.eigvalsh(P[0]).max()) - 1e-12
+
+
+def test_carve_extent_keeps_voxels_the_surface_clips():
+    """Seen obliquely, a voxel whose box the wall clips is not carved (its centre is in front of the wall)."""
+    W, h = 512, 0.07  # the walls (x = 2.0) lie off this lattice's planes
+    depth = box_depth(W)
+    lo = np.floor(LO / h).astype(np.int64) - 3
+    shape = np.floor(HI / h).astype(np.int64) + 3 - lo + 1
+    c = index_to_center(np.argwhere(np.ones(tuple(shape), bool)) + lo, h).reshape(tuple(shape) + (3,))
+    gap = HI[0] - c[..., 0]  # distance in front of the +x wall (axis-aligned: box half-support h/2)
+    inside = np.all((c[..., 1:] > LO[1:] + 0.3) & (c[..., 1:] < HI[1:] - 0.3), axis=-1) & (c[..., 0] > 0)
+    clipped = inside & (gap > 0) & (gap < h / 2)
+    F0, _ = carve(depth, np.eye(4), h, lo, shape, 0.01, 0.0, 2.0, 0.1, 12.0, extent=False)
+    F1, O1 = carve(depth, np.eye(4), h, lo, shape, 0.01, 0.0, 2.0, 0.1, 12.0, extent=True)
+    assert F0[clipped].any()  # the centre test carves some of them (oblique rays)
+    assert not F1[clipped].any() and O1[clipped].all()
+    clear = inside & (gap > h / 2 + 0.02) & (gap < 1.0) & (np.abs(c[..., 1]) < 0.5) & (np.abs(c[..., 2]) < 0.5)
+    assert F1[clear].all()  # near head-on, a voxel wholly in front of the wall is still carved

@@ -27,8 +27,8 @@ class GeometryParams:
     voxel_size: float = 0.08  # metres
     stride: int = 4  # pixels between samples of the kernel lift
     kernel: str = "psvf"  # "psvf" or "point"
-    alpha: float = 0.01  # radial kernel scale: alpha * r + beta (dimensionless)
-    beta: float = 0.02  # metres
+    alpha: float = 0.005  # radial kernel scale: alpha * r + beta (dimensionless)
+    beta: float = 0.005  # metres
     kappa: float = 2.0  # Mahalanobis truncation radius
     w_pole: float = 0.5  # latitude weight at the poles (1 at the equator)
     r_half: float = 8.0  # metres; range weight 1 / (1 + r / r_half)
@@ -37,10 +37,13 @@ class GeometryParams:
     stable_k: float = 2.0  # neighbour depths within stable_k * eps(r) count as stable
     min_range: float = 0.1  # metres; depths and voxels nearer than this are ignored
     max_range: float = 12.0  # metres; depths and voxels farther than this are ignored
+    extent: str = "box"  # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
+    n_min: float = 0.15  # a frame counts in N only when its support dA exceeds this (paper: 0)
+    carve_extent: bool = True  # carve only voxels whose whole box lies in front of the observed local plane
 
 
 @nb.njit(cache=True)
-def _extract(A, F, O, lo, scale):
+def _extract(A, F, O, lo, scale, n_min):
     nx, ny, nz = A.shape
     cnt = 0
     for i in range(nx):
@@ -61,7 +64,7 @@ def _extract(A, F, O, lo, scale):
                 if O[i, j, k] != 0 or a != 0:
                     keys[n] = kj | (k + lo[2] + off)
                     out[n, 0] = a
-                    out[n, 1] = 1 if a > 0 else 0
+                    out[n, 1] = 1 if a > n_min else 0
                     out[n, 2] = F[i, j, k]
                     out[n, 3] = O[i, j, k]
                     n += 1
@@ -100,14 +103,26 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     c_norm = 1.0 / (2.0 * np.pi) if p.kernel == "psvf" else 1.0
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
+    if p.extent not in ("box", "centre"):
+        raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected box or centre)")
+    er = sr = None
+    kern = p.kernel
+    box_half = half
     if p.kernel == "point":
-        half = np.full_like(half, p.voxel_size)
-    lo, shape = frame_box(x, half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
+        box_half = half = np.full_like(half, p.voxel_size)
+    elif p.extent == "box":
+        v = x - T_world_cam[:3, 3]
+        rr = np.sqrt((v * v).sum(1))
+        er = v / rr[:, None]  # ray directions (world)
+        sr = p.alpha * rr + p.beta  # radial scales
+        kern = "box"
+        box_half = half + 0.5 * p.voxel_size * np.abs(er) / p.kappa  # the splat's reach includes the chord
+    lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
     if int(np.prod(shape)) > MAX_FRAME_VOXELS:
         raise PanovoccError(f"a frame spans {shape.tolist()} voxels (over {MAX_FRAME_VOXELS}); "
                             "lower --max-range or raise --voxel-size")
-    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, p.kernel)
+    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
     F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
-                 p.min_range, p.max_range)
-    keys, rows = _extract(A, F, O, lo, float(FIXED_SCALE))
+                 p.min_range, p.max_range, p.carve_extent)
+    keys, rows = _extract(A, F, O, lo, float(FIXED_SCALE), np.int64(np.floor(p.n_min * FIXED_SCALE)))
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})

@@ -170,8 +170,14 @@ def _scatter_add(table_keys, table_slots, block_keys, data, n_blocks, keys, vals
     cap_table = table_keys.shape[0]
     cap_data = data.shape[0]
     nc = cols.shape[0]
+    last_bkey = np.int64(-1)
+    last_slot = np.int64(-1)
     for n in range(start, keys.shape[0]):
         bkey, o = _block_key_and_offset(keys[n])
+        if bkey == last_bkey:  # sorted keys: runs of up to 8 voxels share a block
+            for c in range(nc):
+                data[last_slot, o, cols[c]] += sign * vals[n, c]
+            continue
         if n_blocks >= cap_data or 2 * (n_blocks + 1) > cap_table:
             # might need a new block: check without inserting
             mask = np.uint64(cap_table - 1)
@@ -193,6 +199,8 @@ def _scatter_add(table_keys, table_slots, block_keys, data, n_blocks, keys, vals
             if ins:
                 block_keys[n_blocks] = bkey
                 n_blocks += 1
+        last_bkey = bkey
+        last_slot = slot
         for c in range(nc):
             data[slot, o, cols[c]] += sign * vals[n, c]
     return keys.shape[0], n_blocks
