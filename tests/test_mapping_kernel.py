@@ -7,7 +7,8 @@ from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
 from panovocc_cli.mapping.contributors import GeometryParams, geometry_delta
 from panovocc_cli.mapping.freespace import carve
 from panovocc_cli.mapping.memory import FIXED_SCALE
-from panovocc_cli.mapping.psvf import kernel_inverse_cov, kernel_params, lift_kernels, measurement_weight, splat
+from panovocc_cli.mapping.psvf import (kernel_inverse_cov, kernel_params, lift_kernels, lift_surfels,
+                                     measurement_weight, splat, splat_axis)
 
 LO, HI = np.array([-2.0, -1.5, -1.2]), np.array([2.0, 1.5, 1.6])  # box room around a camera at the origin
 
@@ -161,3 +162,87 @@ def test_carve_extent_keeps_voxels_the_surface_clips():
     assert not F1[clipped].any() and O1[clipped].all()
     clear = inside & (gap > h / 2 + 0.02) & (gap < 1.0) & (np.abs(c[..., 1]) < 0.5) & (np.abs(c[..., 2]) < 0.5)
     assert F1[clear].all()  # near head-on, a voxel wholly in front of the wall is still carved
+
+
+def _floor_view(W, z0):
+    """A camera at the origin (world +z up) over an infinite floor z = z0: closed-form radial depth."""
+    T = np.eye(4)
+    T[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # camera y (down) -> world -z
+    dz = (ray_directions(W) @ T[:3, :3].T)[..., 2]
+    with np.errstate(divide="ignore"):
+        return np.where(dz < -0.1, z0 / dz, 0.0).astype(np.float32), T
+
+
+def test_surfel_kernel_is_thin_on_a_plane_seen_at_grazing_incidence():
+    """extent=surfel: a floor seen at 10-25 degrees of grazing (ranges 2.9-7.1 m, tangential widths up to
+    2.2 h) gets support only in the voxel layer the plane clips (centres 1 cm from it); the ray-aligned
+    box kernel spreads the same samples over several layers."""
+    W, h, z0 = 256, 0.08, -1.23  # the clipped layer's centres are at z = -1.24, the next ones 7 and 9 cm off
+    depth, T = _floor_view(W, z0)
+    elev = np.arcsin(-z0 / np.where(depth > 0, depth, np.inf))
+    depth = np.where((elev > np.radians(10)) & (elev < np.radians(25)), depth, 0.0).astype(np.float32)
+    x, Pt, half, w, ax, sa, bb, surf = lift_surfels(depth, T, 2, 0.0025, 0.0025, 0.1, 12.0, 0.5, 8.0, 1.0, h,
+                                                    1.5, 0.003, 0.25, 3.0)
+    assert surf.all()  # the band's edge rows use one-sided differences: no fallback
+    np.testing.assert_allclose(np.abs(ax[:, 2]), 1.0, atol=1e-9)  # normals of a plane: exact
+    np.testing.assert_allclose(x[:, 2], z0, atol=1e-5)  # and the surfels lie on it
+    for extent in ("surfel", "box"):
+        d = geometry_delta(depth, T, GeometryParams(voxel_size=h, stride=2, extent=extent))
+        c = index_to_center(unpack_keys(d.keys), h)
+        A = d.channels["A"][:, 0]
+        off = np.abs(c[:, 2] - z0)
+        if extent == "surfel":
+            assert (A[off < h / 2] > 0).sum() > 1000
+            assert not np.any(A[off > h / 2] > 0)  # nothing even one layer off the plane
+        else:
+            assert A[off > 1.5 * h].sum() > 0.1 * A.sum()  # the ray-aligned kernel: thick at grazing incidence
+
+
+def test_surfel_kernel_closed_form():
+    """splat_axis: tangential Gaussian (rank-2 Pt) times P(plane through the voxel's support +-b along n)."""
+    from math import erf
+
+    h, kappa = 0.08, 1.5
+    W, z0 = 256, -1.23
+    depth, T = _floor_view(W, z0)
+    x, Pt, half, w, ax, sa, bb, _ = lift_surfels(depth, T, 2, 0.0025, 0.0025, 0.1, 12.0, 0.5, 8.0, 1.0, h,
+                                                 kappa, 0.003, 0.25, 3.0)
+    p = int(np.argmin(np.abs(np.linalg.norm(x, axis=1) - 3.0)))  # a sample 3 m away, incidence ~66 deg
+    np.testing.assert_allclose(Pt[p] @ ax[p], 0.0, atol=1e-9)  # no Gaussian along the normal
+    np.testing.assert_allclose(bb[p], 0.5 * h * np.abs(ax[p]).sum())
+    lo = np.floor((x[p] - half[p]) / h).astype(np.int64) - 1
+    shape = np.floor((x[p] + half[p]) / h).astype(np.int64) + 2 - lo
+    A = splat_axis(x[p:p + 1], Pt[p:p + 1], half[p:p + 1], w[p:p + 1], ax[p:p + 1], sa[p:p + 1], bb[p:p + 1],
+                   kappa, h, lo, shape)
+    ijk = np.argwhere(np.ones(tuple(shape), bool))
+    c = index_to_center(ijk + lo, h) - x[p]
+    dn = c @ ax[p]
+    dt2 = np.einsum("ni,ij,nj->n", c, Pt[p], c)
+    s, b = sa[p], bb[p]
+    pn = np.array([0.5 * (erf((b - v) / (np.sqrt(2) * s)) + erf((b + v) / (np.sqrt(2) * s))) for v in dn])
+    want = np.where((dt2 <= kappa ** 2) & (np.abs(dn) <= b + kappa * s), w[p] * np.exp(-0.5 * dt2) * pn, 0.0)
+    np.testing.assert_allclose(A[tuple(ijk.T)], want, rtol=1e-7, atol=1e-12)
+    # the support box of the kernel (half) holds every voxel it reaches: nothing is cut at its faces
+    assert A[0].max() == 0 and A[-1].max() == 0 and A[:, 0].max() == 0 and A[:, :, -1].max() == 0
+
+
+def test_hierarchical_carving_equals_exhaustive():
+    """Block-wise bulk carving / skipping gives exactly the per-voxel test's F and O (box room with depth
+    noise and invalid pixels, a rotated and shifted pose, both carving variants)."""
+    W, h = 256, 0.08
+    T = np.eye(4)
+    c, s = np.cos(0.3), np.sin(0.3)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = [0.3, -0.2, 0.1]
+    rng = np.random.default_rng(0)
+    depth = box_depth(W, T)
+    depth = (depth + rng.normal(0, 0.01, depth.shape)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.01] = 0.0
+    lo = np.floor(LO / h).astype(np.int64) - 5
+    shape = np.floor(HI / h).astype(np.int64) + 5 - lo + 1
+    for extent in (True, False):
+        F0, O0 = carve(depth, T, h, lo, shape, 0.07, 0.01, 2.0, 0.1, 12.0, extent, hierarchical=False)
+        F1, O1 = carve(depth, T, h, lo, shape, 0.07, 0.01, 2.0, 0.1, 12.0, extent, hierarchical=True)
+        assert F0.sum() > 10000 and O0.sum() > F0.sum()
+        np.testing.assert_array_equal(F1, F0)
+        np.testing.assert_array_equal(O1, O0)

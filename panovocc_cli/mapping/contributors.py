@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import PanovoccError
 from .freespace import carve
 from .memory import FIXED_SCALE, Delta
-from .psvf import lift_kernels, splat
+from .psvf import lift_kernels, lift_surfels, splat, splat_axis
 
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
 
@@ -27,9 +27,9 @@ class GeometryParams:
     voxel_size: float = 0.08  # metres
     stride: int = 4  # pixels between samples of the kernel lift
     kernel: str = "psvf"  # "psvf" or "point"
-    alpha: float = 0.005  # radial kernel scale: alpha * r + beta (dimensionless)
-    beta: float = 0.005  # metres
-    kappa: float = 2.0  # Mahalanobis truncation radius
+    alpha: float = 0.0025  # radial kernel scale: alpha * r + beta (dimensionless)
+    beta: float = 0.0025  # metres
+    kappa: float = 1.5  # Mahalanobis truncation radius (of the tangential Gaussian for box / surfel)
     w_pole: float = 0.5  # latitude weight at the poles (1 at the equator)
     r_half: float = 8.0  # metres; range weight 1 / (1 + r / r_half)
     eps_abs: float = 0.07  # metres; free-space margin eps(r) = eps_abs + eps_rel r
@@ -37,19 +37,30 @@ class GeometryParams:
     stable_k: float = 2.0  # neighbour depths within stable_k * eps(r) count as stable
     min_range: float = 0.1  # metres; depths and voxels nearer than this are ignored
     max_range: float = 12.0  # metres; depths and voxels farther than this are ignored
-    extent: str = "box"  # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
-    n_min: float = 0.15  # a frame counts in N only when its support dA exceeds this (paper: 0)
+    extent: str = "surfel"  # "surfel": kernel on the local surface plane, factor P(plane through the voxel box);
+    # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
+    n_min: float = 0.2  # a frame counts in N only when its support dA exceeds this (paper: 0)
     carve_extent: bool = True  # carve only voxels whose whole box lies in front of the observed local plane
+    drop_below_n_min: bool = False  # a frame's support dA <= n_min is dropped from A as well as from N
+    n_floor: float = 0.003  # metres; surfel kernel: floor of the scale along the normal
+    c_min: float = 0.25  # surfel kernel: |cos incidence| floor of the in-plane footprint stretch
+    surfel_fit: bool = True  # surfel kernel: centre on the plane fitted to the sample and its 4 neighbours
+    edge_abs: float = 0.0  # metres; surfel kernel: edge tolerance = disc_k (alpha r + beta) + edge_abs
+    disc_k: float = 3.0  # surfel kernel: edge/corner if a sample is farther than disc_k (alpha r + beta) + edge_abs
+    # from the line through its two neighbours (per image axis)
 
 
 @nb.njit(cache=True)
-def _extract(A, F, O, lo, scale, n_min):
+def _extract(A, F, O, lo, scale, n_min, drop):
     nx, ny, nz = A.shape
     cnt = 0
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):
-                if O[i, j, k] != 0 or np.rint(A[i, j, k] * scale) != 0:
+                a = np.int64(np.rint(A[i, j, k] * scale))
+                if drop and a <= n_min:
+                    a = 0
+                if O[i, j, k] != 0 or a != 0:
                     cnt += 1
     keys = np.empty(cnt, np.int64)
     out = np.zeros((cnt, 4), np.int64)
@@ -61,6 +72,8 @@ def _extract(A, F, O, lo, scale, n_min):
             kj = ki | ((j + lo[1] + off) << 21)
             for k in range(nz):
                 a = np.int64(np.rint(A[i, j, k] * scale))
+                if drop and a <= n_min:
+                    a = 0
                 if O[i, j, k] != 0 or a != 0:
                     keys[n] = kj | (k + lo[2] + off)
                     out[n, 0] = a
@@ -101,10 +114,19 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     if p.kernel not in ("psvf", "point"):
         raise PanovoccError(f"unknown kernel {p.kernel!r} (expected psvf or point)")
     c_norm = 1.0 / (2.0 * np.pi) if p.kernel == "psvf" else 1.0
+    if p.extent not in ("box", "centre", "surfel"):
+        raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected surfel, box or centre)")
+    if p.kernel == "psvf" and p.extent == "surfel":
+        x, Pt, half, w, ax, sa, bb, _ = lift_surfels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range,
+                                                     p.max_range, p.w_pole, p.r_half, c_norm, p.voxel_size,
+                                                     p.kappa, p.n_floor, p.c_min, p.disc_k, p.surfel_fit,
+                                                     p.edge_abs)
+        lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
+        _check_box(shape)
+        A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
+        return _finish(A, depth, T_world_cam, p, lo, shape)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
-    if p.extent not in ("box", "centre"):
-        raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected box or centre)")
     er = sr = None
     kern = p.kernel
     box_half = half
@@ -118,11 +140,21 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
         kern = "box"
         box_half = half + 0.5 * p.voxel_size * np.abs(er) / p.kappa  # the splat's reach includes the chord
     lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
+    _check_box(shape)
+    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
+    return _finish(A, depth, T_world_cam, p, lo, shape)
+
+
+def _check_box(shape) -> None:
     if int(np.prod(shape)) > MAX_FRAME_VOXELS:
         raise PanovoccError(f"a frame spans {shape.tolist()} voxels (over {MAX_FRAME_VOXELS}); "
                             "lower --max-range or raise --voxel-size")
-    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
+
+
+def _finish(A, depth, T_world_cam, p: GeometryParams, lo, shape) -> Delta:
+    """Free-space test and extraction of the frame's sparse delta from its dense support grid A."""
     F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
                  p.min_range, p.max_range, p.carve_extent)
-    keys, rows = _extract(A, F, O, lo, float(FIXED_SCALE), np.int64(np.floor(p.n_min * FIXED_SCALE)))
+    keys, rows = _extract(A, F, O, lo, float(FIXED_SCALE), np.int64(np.floor(p.n_min * FIXED_SCALE)),
+                           p.drop_below_n_min)
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})

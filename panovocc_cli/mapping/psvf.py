@@ -287,3 +287,279 @@ def lift_kernels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
     t = np.ascontiguousarray(T_world_cam[:3, 3], dtype=np.float64)
     return _lift(d, theta, phi, R, t, 2.0 * np.pi * stride / W, np.pi * stride / H, float(alpha), float(beta),
                  float(min_range), float(max_range), float(w_pole), float(r_half), float(c_norm))
+
+
+# --------------------------------------------------------------------------------------------------
+# Surfel-aligned kernel (GeometryParams.extent = "surfel")
+# --------------------------------------------------------------------------------------------------
+
+@nb.njit(cache=True)
+def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole, r_half, c_norm, h, kappa,
+                 n_floor, c_min, disc_k, fit, tol_abs):
+    """Surfel kernels of the strided valid pixels (see :func:`lift_surfels`)."""
+    H, W = depth.shape
+    dth = 2.0 * np.pi / W
+    dph = np.pi / H
+    s0 = stride // 2
+    rows = np.arange(s0, H, stride)
+    cols = np.arange(s0, W, stride)
+    n = 0
+    for v in rows:
+        for u in cols:
+            r = depth[v, u]
+            if r > 0 and r >= min_range and r <= max_range:
+                n += 1
+    x = np.empty((n, 3))
+    Pt = np.zeros((n, 3, 3))
+    half = np.empty((n, 3))
+    w = np.empty(n)
+    ax = np.empty((n, 3))
+    sa = np.empty(n)
+    bb = np.empty(n)
+    surf = np.zeros(n, np.uint8)
+    Ec = np.empty((3, 3))
+    E = np.empty((3, 3))
+    nfit = 1.0
+    k = stride  # normal from the neighbouring samples (+-stride pixels): a baseline robust to depth noise
+    m = 0
+    for v in rows:
+        phi = 0.5 * np.pi - (v + 0.5) * dph
+        sp, cp = np.sin(phi), np.cos(phi)
+        for u in cols:
+            r = np.float64(depth[v, u])
+            if not (r > 0 and r >= min_range and r <= max_range):
+                continue
+            theta = (u + 0.5) * dth - np.pi
+            st, ct = np.sin(theta), np.cos(theta)
+            Ec[0, 0], Ec[1, 0], Ec[2, 0] = ct, 0.0, -st
+            Ec[0, 1], Ec[1, 1], Ec[2, 1] = -sp * st, -cp, -sp * ct
+            Ec[0, 2], Ec[1, 2], Ec[2, 2] = cp * st, -sp, cp * ct
+            for i in range(3):
+                for j in range(3):
+                    E[i, j] = R[i, 0] * Ec[0, j] + R[i, 1] * Ec[1, j] + R[i, 2] * Ec[2, j]
+            sth = max(r * abs(cp) * dth * stride, SIGMA_MIN)
+            sph = max(r * dph * stride, SIGMA_MIN)
+            sr = max(alpha * r + beta, SIGMA_MIN)
+            for i in range(3):
+                x[m, i] = r * E[i, 2] + t[i]
+            w[m] = c_norm * (1.0 - (1.0 - w_pole) * sp * sp) / (1.0 + r / r_half)
+            # ---- local surface normal from the neighbouring samples (camera frame) ----
+            # per image direction: the central difference where the depth is smooth (second difference
+            # within tol), else the one-sided difference to the valid neighbour nearer in depth
+            nrm = np.zeros(3)
+            tol = disc_k * sr + tol_abs
+            pc0, pc1, pc2 = r * Ec[0, 2], r * Ec[1, 2], r * Ec[2, 2]
+            used = np.zeros((4, 3))
+            nused = 0
+            tang = np.zeros((2, 3))
+            ok = True
+            for dirn in range(2):
+                vv0, uu0, vv1, uu1 = v, (u - k) % W, v, (u + k) % W  # longitude: left, right
+                if dirn == 1:
+                    vv0, uu0, vv1, uu1 = v - k, u, v + k, u  # latitude: up, down
+                r0 = depth[vv0, uu0] if 0 <= vv0 < H else np.float32(0.0)
+                r1 = depth[vv1, uu1] if 0 <= vv1 < H else np.float32(0.0)
+                use0 = r0 > 0
+                use1 = r1 > 0
+                if not (use0 or use1):
+                    ok = False
+                    break
+                q0 = np.array([pc0, pc1, pc2])
+                q1 = np.array([pc0, pc1, pc2])
+                for side in range(2):
+                    if (use0 if side == 0 else use1):
+                        vq, uq, rq = (vv0, uu0, r0) if side == 0 else (vv1, uu1, r1)
+                        ph = 0.5 * np.pi - (vq + 0.5) * dph
+                        th = (uq + 0.5) * dth - np.pi
+                        pq = np.array([rq * np.cos(ph) * np.sin(th), -rq * np.sin(ph), rq * np.cos(ph) * np.cos(th)])
+                        if side == 0:
+                            q0 = pq
+                        else:
+                            q1 = pq
+                        used[nused] = pq
+                        nused += 1
+                if use0 and use1:
+                    # smooth surface: the sample lies within tol of the line through its two neighbours
+                    l0, l1, l2 = q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]
+                    e0, e1, e2 = pc0 - q0[0], pc1 - q0[1], pc2 - q0[2]
+                    x0, x1, x2 = e1 * l2 - e2 * l1, e2 * l0 - e0 * l2, e0 * l1 - e1 * l0
+                    if x0 * x0 + x1 * x1 + x2 * x2 > (tol * tol) * (l0 * l0 + l1 * l1 + l2 * l2):
+                        ok = False  # a depth edge or a corner: the ray-aligned kernel
+                        break
+                tang[dirn] = q1 - q0
+            if ok:
+                a0, a1, a2 = tang[0, 0], tang[0, 1], tang[0, 2]
+                b0, b1, b2 = tang[1, 0], tang[1, 1], tang[1, 2]
+                nc0, nc1, nc2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+                nn = np.sqrt(nc0 * nc0 + nc1 * nc1 + nc2 * nc2)
+                if nn <= 0.0:
+                    ok = False
+                else:
+                    for i in range(3):
+                        nrm[i] = (R[i, 0] * nc0 + R[i, 1] * nc1 + R[i, 2] * nc2) / nn
+                    if fit:
+                        # centre the surfel on the plane through the centroid of the sample and the
+                        # neighbours used: move x along n by the centroid's offset
+                        off = 0.0
+                        for q in range(nused):
+                            off += (nc0 * (used[q, 0] - pc0) + nc1 * (used[q, 1] - pc1) + nc2 * (used[q, 2] - pc2)) / nn
+                        off /= nused + 1.0
+                        for i in range(3):
+                            x[m, i] += off * nrm[i]
+                        nfit = nused + 1.0
+            if ok:
+                d0, d1, d2 = E[0, 2], E[1, 2], E[2, 2]
+                cosi = nrm[0] * d0 + nrm[1] * d1 + nrm[2] * d2
+                if cosi > 0:
+                    nrm[0], nrm[1], nrm[2] = -nrm[0], -nrm[1], -nrm[2]
+                    cosi = -cosi
+                c = abs(cosi)
+                # in-plane direction of the ray t1, and t2 = n x t1 (perpendicular to the ray too)
+                u0, u1, u2 = d0 + c * nrm[0], d1 + c * nrm[1], d2 + c * nrm[2]  # d - (n.d) n
+                un = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+                if un < 1e-9:
+                    t1 = np.array([E[0, 0], E[1, 0], E[2, 0]])
+                else:
+                    t1 = np.array([u0 / un, u1 / un, u2 / un])
+                t2 = np.array([nrm[1] * t1[2] - nrm[2] * t1[1], nrm[2] * t1[0] - nrm[0] * t1[2],
+                               nrm[0] * t1[1] - nrm[1] * t1[0]])
+                # w1 = t2 x d: the direction perpendicular to the ray whose footprint stretches onto t1
+                w1 = np.array([t2[1] * d2 - t2[2] * d1, t2[2] * d0 - t2[0] * d2, t2[0] * d1 - t2[1] * d0])
+                g1t = w1[0] * E[0, 0] + w1[1] * E[1, 0] + w1[2] * E[2, 0]
+                g1p = w1[0] * E[0, 1] + w1[1] * E[1, 1] + w1[2] * E[2, 1]
+                g2t = t2[0] * E[0, 0] + t2[1] * E[1, 0] + t2[2] * E[2, 0]
+                g2p = t2[0] * E[0, 1] + t2[1] * E[1, 1] + t2[2] * E[2, 1]
+                vt, vp = sth * sth, sph * sph
+                cs = max(c, c_min)
+                q11 = (vt * g1t * g1t + vp * g1p * g1p) / (cs * cs)
+                q12 = (vt * g1t * g2t + vp * g1p * g2p) / cs
+                q22 = vt * g2t * g2t + vp * g2p * g2p
+                det = q11 * q22 - q12 * q12
+                i11, i12, i22 = q22 / det, -q12 / det, q11 / det
+                sn = (sr * c / np.sqrt(nfit) if fit else sr * c) + n_floor
+                b = 0.5 * h * (abs(nrm[0]) + abs(nrm[1]) + abs(nrm[2]))
+                for i in range(3):
+                    ax[m, i] = nrm[i]
+                    for j in range(3):
+                        Pt[m, i, j] = (i11 * t1[i] * t1[j] + i12 * (t1[i] * t2[j] + t2[i] * t1[j])
+                                       + i22 * t2[i] * t2[j])
+                    cov_ii = q11 * t1[i] * t1[i] + 2.0 * q12 * t1[i] * t2[i] + q22 * t2[i] * t2[i]
+                    half[m, i] = kappa * np.sqrt(cov_ii) + (b + kappa * sn) * abs(nrm[i])
+                sa[m] = sn
+                bb[m] = b
+                surf[m] = 1
+            else:
+                # ray-aligned fallback (the "box" kernel): tangential Gaussian, chord probability along the ray
+                vt, vp = sth * sth, sph * sph
+                b = 0.5 * h / max(abs(E[0, 2]), abs(E[1, 2]), abs(E[2, 2]))
+                for i in range(3):
+                    ax[m, i] = E[i, 2]
+                    for j in range(3):
+                        Pt[m, i, j] = E[i, 0] * E[j, 0] / vt + E[i, 1] * E[j, 1] / vp
+                    half[m, i] = kappa * np.sqrt(E[i, 0] ** 2 * vt + E[i, 1] ** 2 * vp) + (b + kappa * sr) * abs(E[i, 2])
+                sa[m] = sr
+                bb[m] = b
+            m += 1
+    return x, Pt, half, w, ax, sa, bb, surf
+
+
+def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha: float, beta: float,
+                 min_range: float, max_range: float, w_pole: float, r_half: float, c_norm: float,
+                 voxel_size: float, kappa: float, n_floor: float, c_min: float, disc_k: float,
+                 fit: bool = True, tol_abs: float = 0.0):
+    """Surfel-aligned kernels of the strided valid pixels (``GeometryParams.extent = "surfel"``).
+
+    The local surface normal n of each sample comes from its neighbouring samples (+-stride pixels,
+    longitude wraps): per image axis the central difference, or the one-sided difference where one
+    neighbour is invalid or outside the image. The kernel is a Gaussian within the surface plane whose covariance is the ERP
+    pixel footprint (``r |cos phi| dtheta``, ``r dphi``, dtheta, dphi at the stride) projected along the
+    ray onto the plane (stretched by ``1 / max(|cos i|, c_min)`` along the ray's in-plane direction,
+    i = incidence), times the probability that the plane, displaced along n with scale
+    ``s_n = (alpha r + beta) |cos i| + n_floor``, passes through the voxel's box (half-support
+    ``b = (h / 2) |n|_1`` along n). A sample farther than ``disc_k (alpha r + beta) + tol_abs`` from the
+    line through its two neighbours (per image axis) marks a depth edge or a corner; there, and where both neighbours of an axis are invalid, the sample keeps the
+    ray-aligned ``box`` kernel (axis = ray, b = the voxel's chord half-length). With ``fit`` (default)
+    the surfel is centred on the plane through the centroid of the sample and the m - 1 neighbours used
+    (the sample moved along n by the centroid's offset; m = 5 on smooth surfaces) and ``s_n`` uses
+    ``(alpha r + beta) |cos i| / sqrt(m)``: the plane's offset averages m depth measurements.
+
+    Parameters
+    ----------
+    depth : (H, W) float32, metres, radial, 0 = invalid; T_world_cam : (4, 4) float64
+
+    Returns
+    -------
+    x_world : (n, 3) float64 metres; Pt : (n, 3, 3) float64 1/m^2, tangential inverse covariance
+    (rank 2, zero along the axis); half : (n, 3) float64 metres, half-extents of the kernel's support
+    on each world axis; w : (n,) float64; axis : (n, 3) float64 unit (normal or ray), world;
+    s_axis : (n,) float64 metres; b : (n,) float64 metres; surfel : (n,) uint8, 1 where the normal was used
+    """
+    R = np.ascontiguousarray(T_world_cam[:3, :3], dtype=np.float64)
+    t = np.ascontiguousarray(T_world_cam[:3, 3], dtype=np.float64)
+    return _lift_surfel(np.ascontiguousarray(depth, dtype=np.float32), int(stride), R, t, float(alpha),
+                        float(beta), float(min_range), float(max_range), float(w_pole), float(r_half),
+                        float(c_norm), float(voxel_size), float(kappa), float(n_floor), float(c_min),
+                        float(disc_k), bool(fit), float(tol_abs))
+
+
+@nb.njit(cache=True, parallel=True)
+def _splat_axis(x, Pt, half, w, ax, sa, bb, kappa, h, lo, grids):
+    """Tangential Gaussian (Pt) times P(axis coordinate within the voxel's support +-b along the axis)."""
+    n = x.shape[0]
+    k2 = kappa * kappa
+    nx, ny, nz = grids.shape[1], grids.shape[2], grids.shape[3]
+    step = (n + N_CHUNKS - 1) // N_CHUNKS
+    for ch in nb.prange(N_CHUNKS):
+        g = grids[ch]
+        for p in range(ch * step, min(n, (ch + 1) * step)):
+            px, py, pz = x[p, 0], x[p, 1], x[p, 2]
+            a00, a01, a02 = Pt[p, 0, 0], Pt[p, 0, 1], Pt[p, 0, 2]
+            a11, a12, a22 = Pt[p, 1, 1], Pt[p, 1, 2], Pt[p, 2, 2]
+            ex, ey, ez = ax[p, 0], ax[p, 1], ax[p, 2]
+            s = sa[p]
+            inv2s = 1.0 / (np.sqrt(2.0) * s)
+            b = bb[p]
+            rlim = b + kappa * s
+            wp = w[p]
+            i0 = max(int(np.ceil((px - half[p, 0]) / h - 0.5)) - lo[0], 0)
+            i1 = min(int(np.floor((px + half[p, 0]) / h - 0.5)) - lo[0], nx - 1)
+            j0 = max(int(np.ceil((py - half[p, 1]) / h - 0.5)) - lo[1], 0)
+            j1 = min(int(np.floor((py + half[p, 1]) / h - 0.5)) - lo[1], ny - 1)
+            k0 = max(int(np.ceil((pz - half[p, 2]) / h - 0.5)) - lo[2], 0)
+            k1 = min(int(np.floor((pz + half[p, 2]) / h - 0.5)) - lo[2], nz - 1)
+            for i in range(i0, i1 + 1):
+                dx = (i + lo[0] + 0.5) * h - px
+                for j in range(j0, j1 + 1):
+                    dy = (j + lo[1] + 0.5) * h - py
+                    qxy = a00 * dx * dx + 2.0 * a01 * dx * dy + a11 * dy * dy
+                    bz = 2.0 * (a02 * dx + a12 * dy)
+                    rxy = ex * dx + ey * dy
+                    for k in range(k0, k1 + 1):
+                        dz = (k + lo[2] + 0.5) * h - pz
+                        dr = rxy + ez * dz
+                        if abs(dr) > rlim:
+                            continue
+                        dt2 = qxy + dz * (bz + a22 * dz)
+                        if dt2 <= k2:
+                            g[i, j, k] += wp * np.exp(-0.5 * dt2) * 0.5 * (math.erf((b - dr) * inv2s) + math.erf((b + dr) * inv2s))
+
+
+def splat_axis(x_world, Pt, half, w, axis, s_axis, b, kappa: float, voxel_size: float, lo: np.ndarray,
+               shape) -> np.ndarray:
+    """Per-frame support of surfel kernels (from :func:`lift_surfels`) on a dense frame-local grid.
+
+    Returns
+    -------
+    A : (X, Y, Z) float64, dA of each voxel; voxel centre c gets, for each sample,
+    ``w exp(-dt^2 / 2) 0.5 [erf((b - dn) / (sqrt 2 s)) + erf((b + dn) / (sqrt 2 s))]`` with
+    ``dt^2 = (c - x)^T Pt (c - x) <= kappa^2``, ``dn = axis . (c - x)``, ``|dn| <= b + kappa s``.
+    """
+    shape = tuple(int(s) for s in shape)
+    grids = np.zeros((N_CHUNKS,) + shape, np.float64)
+    _splat_axis(np.ascontiguousarray(x_world), np.ascontiguousarray(Pt), np.ascontiguousarray(half),
+                np.ascontiguousarray(w), np.ascontiguousarray(axis), np.ascontiguousarray(s_axis),
+                np.ascontiguousarray(b), float(kappa), float(voxel_size), np.asarray(lo, np.int64), grids)
+    out = grids[0]
+    for c in range(1, N_CHUNKS):
+        out += grids[c]
+    return out
