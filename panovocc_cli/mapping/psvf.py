@@ -293,7 +293,7 @@ def lift_kernels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
 # Surfel-aligned kernel (GeometryParams.extent = "surfel")
 # --------------------------------------------------------------------------------------------------
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole, r_half, c_norm, h, kappa,
                  n_floor, c_min, disc_k, fit, tol_abs):
     """Surfel kernels of the strided valid pixels (see :func:`lift_surfels`)."""
@@ -303,12 +303,25 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
     s0 = stride // 2
     rows = np.arange(s0, H, stride)
     cols = np.arange(s0, W, stride)
-    n = 0
-    for v in rows:
+    # per-row offsets into the outputs (rows run in parallel; the order is the serial one)
+    start = np.zeros(len(rows) + 1, np.int64)
+    for a in range(len(rows)):
+        c = 0
         for u in cols:
-            r = depth[v, u]
+            r = depth[rows[a], u]
             if r > 0 and r >= min_range and r <= max_range:
-                n += 1
+                c += 1
+        start[a + 1] = start[a] + c
+    n = start[-1]
+    # sin / cos of every pixel row's latitude and column's longitude (the neighbours' too)
+    sphi, cphi = np.empty(H), np.empty(H)
+    for vv in range(H):
+        ph = 0.5 * np.pi - (vv + 0.5) * dph
+        sphi[vv], cphi[vv] = np.sin(ph), np.cos(ph)
+    sth, cth = np.empty(W), np.empty(W)
+    for uu in range(W):
+        th = (uu + 0.5) * dth - np.pi
+        sth[uu], cth[uu] = np.sin(th), np.cos(th)
     x = np.empty((n, 3))
     Pt = np.zeros((n, 3, 3))
     half = np.empty((n, 3))
@@ -317,28 +330,35 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
     sa = np.empty(n)
     bb = np.empty(n)
     surf = np.zeros(n, np.uint8)
-    Ec = np.empty((3, 3))
-    E = np.empty((3, 3))
-    nfit = 1.0
     k = stride  # normal from the neighbouring samples (+-stride pixels): a baseline robust to depth noise
-    m = 0
-    for v in rows:
-        phi = 0.5 * np.pi - (v + 0.5) * dph
-        sp, cp = np.sin(phi), np.cos(phi)
+    for a in nb.prange(len(rows)):
+        v = rows[a]
+        m = start[a]
+        Ec = np.empty((3, 3))
+        E = np.empty((3, 3))
+        nfit = 1.0
+        nrm = np.zeros(3)
+        used = np.zeros((4, 3))
+        tang = np.zeros((2, 3))
+        q0 = np.zeros(3)
+        q1 = np.zeros(3)
+        t1 = np.zeros(3)
+        t2 = np.zeros(3)
+        w1 = np.zeros(3)
+        sp, cp = sphi[v], cphi[v]
         for u in cols:
             r = np.float64(depth[v, u])
             if not (r > 0 and r >= min_range and r <= max_range):
                 continue
-            theta = (u + 0.5) * dth - np.pi
-            st, ct = np.sin(theta), np.cos(theta)
+            st, ct = sth[u], cth[u]
             Ec[0, 0], Ec[1, 0], Ec[2, 0] = ct, 0.0, -st
             Ec[0, 1], Ec[1, 1], Ec[2, 1] = -sp * st, -cp, -sp * ct
             Ec[0, 2], Ec[1, 2], Ec[2, 2] = cp * st, -sp, cp * ct
             for i in range(3):
                 for j in range(3):
                     E[i, j] = R[i, 0] * Ec[0, j] + R[i, 1] * Ec[1, j] + R[i, 2] * Ec[2, j]
-            sth = max(r * abs(cp) * dth * stride, SIGMA_MIN)
-            sph = max(r * dph * stride, SIGMA_MIN)
+            s_th = max(r * abs(cp) * dth * stride, SIGMA_MIN)
+            s_ph = max(r * dph * stride, SIGMA_MIN)
             sr = max(alpha * r + beta, SIGMA_MIN)
             for i in range(3):
                 x[m, i] = r * E[i, 2] + t[i]
@@ -346,12 +366,9 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
             # ---- local surface normal from the neighbouring samples (camera frame) ----
             # per image direction: the central difference where the depth is smooth (second difference
             # within tol), else the one-sided difference to the valid neighbour nearer in depth
-            nrm = np.zeros(3)
             tol = disc_k * sr + tol_abs
             pc0, pc1, pc2 = r * Ec[0, 2], r * Ec[1, 2], r * Ec[2, 2]
-            used = np.zeros((4, 3))
             nused = 0
-            tang = np.zeros((2, 3))
             ok = True
             for dirn in range(2):
                 vv0, uu0, vv1, uu1 = v, (u - k) % W, v, (u + k) % W  # longitude: left, right
@@ -364,19 +381,19 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                 if not (use0 or use1):
                     ok = False
                     break
-                q0 = np.array([pc0, pc1, pc2])
-                q1 = np.array([pc0, pc1, pc2])
+                q0[0], q0[1], q0[2] = pc0, pc1, pc2
+                q1[0], q1[1], q1[2] = pc0, pc1, pc2
                 for side in range(2):
                     if (use0 if side == 0 else use1):
                         vq, uq, rq = (vv0, uu0, r0) if side == 0 else (vv1, uu1, r1)
-                        ph = 0.5 * np.pi - (vq + 0.5) * dph
-                        th = (uq + 0.5) * dth - np.pi
-                        pq = np.array([rq * np.cos(ph) * np.sin(th), -rq * np.sin(ph), rq * np.cos(ph) * np.cos(th)])
+                        pq0 = rq * cphi[vq] * sth[uq]
+                        pq1 = -rq * sphi[vq]
+                        pq2 = rq * cphi[vq] * cth[uq]
                         if side == 0:
-                            q0 = pq
+                            q0[0], q0[1], q0[2] = pq0, pq1, pq2
                         else:
-                            q1 = pq
-                        used[nused] = pq
+                            q1[0], q1[1], q1[2] = pq0, pq1, pq2
+                        used[nused, 0], used[nused, 1], used[nused, 2] = pq0, pq1, pq2
                         nused += 1
                 if use0 and use1:
                     # smooth surface: the sample lies within tol of the line through its two neighbours
@@ -386,7 +403,8 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                     if x0 * x0 + x1 * x1 + x2 * x2 > (tol * tol) * (l0 * l0 + l1 * l1 + l2 * l2):
                         ok = False  # a depth edge or a corner: the ray-aligned kernel
                         break
-                tang[dirn] = q1 - q0
+                for i in range(3):
+                    tang[dirn, i] = q1[i] - q0[i]
             if ok:
                 a0, a1, a2 = tang[0, 0], tang[0, 1], tang[0, 2]
                 b0, b1, b2 = tang[1, 0], tang[1, 1], tang[1, 2]
@@ -418,18 +436,19 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                 u0, u1, u2 = d0 + c * nrm[0], d1 + c * nrm[1], d2 + c * nrm[2]  # d - (n.d) n
                 un = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
                 if un < 1e-9:
-                    t1 = np.array([E[0, 0], E[1, 0], E[2, 0]])
+                    t1[0], t1[1], t1[2] = E[0, 0], E[1, 0], E[2, 0]
                 else:
-                    t1 = np.array([u0 / un, u1 / un, u2 / un])
-                t2 = np.array([nrm[1] * t1[2] - nrm[2] * t1[1], nrm[2] * t1[0] - nrm[0] * t1[2],
-                               nrm[0] * t1[1] - nrm[1] * t1[0]])
+                    t1[0], t1[1], t1[2] = u0 / un, u1 / un, u2 / un
+                t2[0] = nrm[1] * t1[2] - nrm[2] * t1[1]
+                t2[1] = nrm[2] * t1[0] - nrm[0] * t1[2]
+                t2[2] = nrm[0] * t1[1] - nrm[1] * t1[0]
                 # w1 = t2 x d: the direction perpendicular to the ray whose footprint stretches onto t1
-                w1 = np.array([t2[1] * d2 - t2[2] * d1, t2[2] * d0 - t2[0] * d2, t2[0] * d1 - t2[1] * d0])
+                w1[0], w1[1], w1[2] = t2[1] * d2 - t2[2] * d1, t2[2] * d0 - t2[0] * d2, t2[0] * d1 - t2[1] * d0
                 g1t = w1[0] * E[0, 0] + w1[1] * E[1, 0] + w1[2] * E[2, 0]
                 g1p = w1[0] * E[0, 1] + w1[1] * E[1, 1] + w1[2] * E[2, 1]
                 g2t = t2[0] * E[0, 0] + t2[1] * E[1, 0] + t2[2] * E[2, 0]
                 g2p = t2[0] * E[0, 1] + t2[1] * E[1, 1] + t2[2] * E[2, 1]
-                vt, vp = sth * sth, sph * sph
+                vt, vp = s_th * s_th, s_ph * s_ph
                 cs = max(c, c_min)
                 q11 = (vt * g1t * g1t + vp * g1p * g1p) / (cs * cs)
                 q12 = (vt * g1t * g2t + vp * g1p * g2p) / cs
@@ -450,7 +469,7 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                 surf[m] = 1
             else:
                 # ray-aligned fallback (the "box" kernel): tangential Gaussian, chord probability along the ray
-                vt, vp = sth * sth, sph * sph
+                vt, vp = s_th * s_th, s_ph * s_ph
                 b = 0.5 * h / max(abs(E[0, 2]), abs(E[1, 2]), abs(E[2, 2]))
                 for i in range(3):
                     ax[m, i] = E[i, 2]
