@@ -15,8 +15,8 @@ Layers (see README "Architecture"):
 
 import os as _os
 
-# numba's parallel kernels: use OpenMP (libgomp, installed with open3d's Debian dependencies). The
-# default search tries TBB first and warns on every run when the installed TBB is too old.
-_os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")
+# numba's parallel kernels: OpenMP first (libgomp, installed with open3d's Debian dependencies), never
+# TBB first (the default order tries TBB and warns on every run when the installed TBB is too old).
+_os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "omp workqueue tbb")
 
 __version__ = "0.1.0"

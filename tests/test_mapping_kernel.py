@@ -4,7 +4,8 @@ import numpy as np
 
 from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
-from panovocc_cli.mapping.contributors import GeometryParams, geometry_delta
+from panovocc_cli.mapping.contributors import geometry_delta
+from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.freespace import carve
 from panovocc_cli.mapping.memory import FIXED_SCALE
 from panovocc_cli.mapping.psvf import (kernel_inverse_cov, kernel_params, lift_kernels, lift_surfels,

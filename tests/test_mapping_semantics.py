@@ -9,7 +9,7 @@ from semantics_helpers import CLASS_NAMES, pose, render_room
 from panovocc_cli.io.grid import Grid, read_grid
 from panovocc_cli.io.poses import write_poses
 from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
-from panovocc_cli.mapping.contributors import GeometryParams
+from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.memory import FIXED_SCALE
 from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
 from panovocc_cli.mapping.semantic import SemanticParams, relabel_from_ground_truth

@@ -9,7 +9,15 @@ from typing import Optional
 import typer
 
 from ..errors import PanovoccError
+from ..mapping.params import GeometryParams, OccupancyParams
 from ._app import app
+
+_G, _O = GeometryParams(), OccupancyParams()  # defaults shown in --help (a light module: no numba import)
+
+
+def _given(**values) -> dict:
+    """The options the user set (not None): they override the parameter dataclasses' defaults."""
+    return {k: v for k, v in values.items() if v is not None}
 
 
 @app.command("map")
@@ -17,22 +25,29 @@ def map_cmd(
     seq: Optional[Path] = typer.Argument(None, help="Sequence folder (CONVENTIONS.md layout); omit with --resume."),
     out: Optional[Path] = typer.Argument(None, help="Output folder for the memory, prediction.npz and map.ply."),
     poses: Optional[Path] = typer.Option(None, help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt."),
-    voxel_size: float = typer.Option(0.08, help="Voxel edge length h, metres."),
+    voxel_size: float = typer.Option(_G.voxel_size, help="Voxel edge length h, metres."),
     stride: int = typer.Option(0, help="Pixel stride s of the kernel lift; 0 = auto, max(1, W // 256) (4 at 1024)."),
     kernel: str = typer.Option("psvf", help="Surface kernel: psvf (anisotropic Gaussian) or point (ablation)."),
     checkpoint_every: int = typer.Option(25, help="Checkpoint the memory every K frames (0 = only at the end)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the interrupted run in OUT (its config is used)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a map already in OUT."),
-    kappa: float = typer.Option(2.0, help="Mahalanobis truncation radius kappa (dimensionless)."),
-    alpha: float = typer.Option(0.01, help="Radial kernel scale alpha in sigma_r = alpha r + beta (dimensionless)."),
-    beta: float = typer.Option(0.02, help="Radial kernel scale beta, metres."),
-    eps_abs: float = typer.Option(0.07, help="Free-space margin eps_abs in eps(r) = eps_abs + eps_rel r, metres."),
-    eps_rel: float = typer.Option(0.01, help="Free-space margin eps_rel (dimensionless, per metre of range)."),
-    max_range: float = typer.Option(12.0, help="Depths and voxels farther than this are ignored, metres."),
-    lambda_f: float = typer.Option(1.0, help="Weight lambda_f of the free-space ratio in the signed score."),
-    tau_s: float = typer.Option(0.12, help="Strong support threshold tau_s on g (per-frame support units)."),
-    tau_w: float = typer.Option(0.04, help="Weak support threshold tau_w on g."),
-    gamma_f: float = typer.Option(0.6, help="Largest free-space ratio F/O for weak support (0..1)."),
+    kappa: Optional[float] = typer.Option(None, help=f"Mahalanobis truncation radius kappa (dimensionless) (default: {_G.kappa})."),
+    alpha: Optional[float] = typer.Option(
+        None, help=f"Radial kernel scale alpha in sigma_r = alpha r + beta (dimensionless) (default: {_G.alpha})."),
+    beta: Optional[float] = typer.Option(None, help=f"Radial kernel scale beta, metres (default: {_G.beta})."),
+    eps_abs: Optional[float] = typer.Option(
+        None, help=f"Free-space margin eps_abs in eps(r) = eps_abs + eps_rel r, metres (default: {_G.eps_abs})."),
+    eps_rel: Optional[float] = typer.Option(
+        None, help=f"Free-space margin eps_rel (dimensionless, per metre of range) (default: {_G.eps_rel})."),
+    max_range: Optional[float] = typer.Option(
+        None, help=f"Depths and voxels farther than this are ignored, metres (default: {_G.max_range})."),
+    lambda_f: Optional[float] = typer.Option(
+        None, help=f"Weight lambda_f of the free-space ratio in the signed score (default: {_O.lambda_f})."),
+    tau_s: Optional[float] = typer.Option(
+        None, help=f"Strong support threshold tau_s on g (per-frame support units) (default: {_O.tau_s})."),
+    tau_w: Optional[float] = typer.Option(None, help=f"Weak support threshold tau_w on g (default: {_O.tau_w})."),
+    gamma_f: Optional[float] = typer.Option(
+        None, help=f"Largest free-space ratio F/O for weak support (0..1) (default: {_O.gamma_f})."),
     segmenter: Optional[str] = typer.Option(
         None, help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none (geometry "
                    "only, occupied voxels 254). Default: simulated when SEQ has labels, else you must choose."),
@@ -49,8 +64,6 @@ def map_cmd(
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
     (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
-    from ..mapping.contributors import GeometryParams
-    from ..mapping.export import OccupancyParams
     from ..mapping.pipeline import MapConfig, run_map
     from ..mapping.semantic import SemanticParams
 
@@ -71,9 +84,9 @@ def map_cmd(
                 raise PanovoccError(f"{seq} has no ground-truth labels (semantic/) for the default simulated "
                                     "segmenter: pass --segmenter precomputed:DIR, or --segmenter none (geometry only)")
             segmenter = "auto"
-        geo = GeometryParams(voxel_size=voxel_size, kernel=kernel, kappa=kappa, alpha=alpha, beta=beta,
-                             eps_abs=eps_abs, eps_rel=eps_rel, max_range=max_range)
-        occ = OccupancyParams(lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w, gamma_f=gamma_f)
+        geo = GeometryParams(voxel_size=voxel_size, kernel=kernel, **_given(
+            kappa=kappa, alpha=alpha, beta=beta, eps_abs=eps_abs, eps_rel=eps_rel, max_range=max_range))
+        occ = OccupancyParams(**_given(lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w, gamma_f=gamma_f))
         sem = SemanticParams(segmenter=segmenter, vocab=vocab, noise=1.0 if noise is None else noise,
                              seed=0 if seed is None else seed, use_gsc=not no_gsc, ply_color=ply_color or "class")
         cfg = MapConfig(seq=str(seq), out=str(out), poses=None if poses is None else str(poses),

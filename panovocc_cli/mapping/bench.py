@@ -101,7 +101,8 @@ def open3d_tsdf_ms(depths, poses, voxel_size: float, depth_max: float) -> float:
 def run_bench(cfg: BenchConfig) -> dict:
     """Render (once) a furnished-room sequence, map it, fuse it with Open3D; return and save the figures."""
     from .pipeline import MapConfig, run_map
-    from .contributors import GeometryParams, geometry_delta
+    from .contributors import geometry_delta
+    from .params import GeometryParams
     from .synthetic import write_room_sequence
 
     if cfg.frames < 2 or cfg.width < 64:

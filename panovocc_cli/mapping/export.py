@@ -8,7 +8,6 @@ support not contradicted by free space). An unoccupied voxel is free (0) when so
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,16 +16,7 @@ from ..geometry.lattice import index_to_center, unpack_keys
 from ..io.atomic import atomic_path
 from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .memory import FIXED_SCALE
-
-
-@dataclass(frozen=True)
-class OccupancyParams:
-    """Decision thresholds (defaults and reasons: docs/mapping.md)."""
-
-    lambda_f: float = 1.0  # weight of the free-space ratio in g
-    tau_s: float = 0.12  # strong support: accepted whatever the free-space ratio
-    tau_w: float = 0.04  # weak support: accepted only if F / max(O, 1) <= gamma_f
-    gamma_f: float = 0.6  # largest admissible free-space ratio for weak support
+from .params import OccupancyParams
 
 
 def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:

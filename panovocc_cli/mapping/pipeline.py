@@ -35,8 +35,9 @@ from ..io.grid import write_grid
 from ..io.npz import write_npz
 from ..io.poses import read_poses, write_poses
 from ..io.sequence import Sequence, frame_stem
-from .contributors import GeometryParams, geometry_delta
-from .export import OccupancyParams, classify, memory_to_grid, occupied_points_and_colors, write_ply_points
+from .contributors import geometry_delta
+from .params import GeometryParams, OccupancyParams
+from .export import classify, memory_to_grid, occupied_points_and_colors, write_ply_points
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, Delta, VoxelMemory, merge_deltas
 from .semantic import SemanticParams
 
