@@ -103,3 +103,18 @@ def test_float_exr_depth(tmp_path):
     write_exr(tmp_path / "nan.exr", d)
     with pytest.raises(PanovoccError, match="NaN"):
         read_depth(tmp_path / "nan.exr", 1000.0)
+
+
+def test_atomic_outputs_get_normal_permissions(tmp_path):
+    import os
+    import stat
+    from panovocc_cli.io.atomic import atomic_dir, write_text
+    old = os.umask(0o022)
+    try:
+        write_text(tmp_path / "a.txt", "x")
+        with atomic_dir(tmp_path / "d") as d:
+            (d / "f").write_text("y")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o644
+    assert stat.S_IMODE((tmp_path / "d").stat().st_mode) == 0o755
