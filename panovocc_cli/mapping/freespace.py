@@ -46,6 +46,25 @@ def _atan2(y, x):
     return r
 
 
+@nb.njit(cache=True, inline="always")
+def _project_offset(Rt, cx, cy, cz, H, W):
+    """Range and containing ERP pixel (row, col) of the world offset c - t, rotated into the camera
+    frame (p = R^T (c - t)); the column wraps, the row is clipped."""
+    px = Rt[0, 0] * cx + Rt[0, 1] * cy + Rt[0, 2] * cz
+    py = Rt[1, 0] * cx + Rt[1, 1] * cy + Rt[1, 2] * cz
+    pz = Rt[2, 0] * cx + Rt[2, 1] * cy + Rt[2, 2] * cz
+    r = np.sqrt(px * px + py * py + pz * pz)
+    theta = _atan2(px, pz)
+    phi = _atan2(-py, np.sqrt(px * px + pz * pz))
+    col = int(np.floor((theta + np.pi) * W / (2.0 * np.pi))) % W
+    row = int(np.floor((0.5 * np.pi - phi) * H / np.pi))
+    if row < 0:
+        row = 0
+    elif row >= H:
+        row = H - 1
+    return r, row, col
+
+
 @nb.njit(cache=True, parallel=True)
 def _carve(depth, Rt, t, h, lo, nx, ny, nz, eps_abs, eps_rel, stable_k, min_range, max_range, extent, F, O):
     H, W = depth.shape
@@ -58,21 +77,9 @@ def _carve(depth, Rt, t, h, lo, nx, ny, nz, eps_abs, eps_rel, stable_k, min_rang
             cy = (j + lo[1] + 0.5) * h - t[1]
             for k in range(nz):
                 cz = (k + lo[2] + 0.5) * h - t[2]
-                # camera frame: p = R^T (c - t)
-                px = Rt[0, 0] * cx + Rt[0, 1] * cy + Rt[0, 2] * cz
-                py = Rt[1, 0] * cx + Rt[1, 1] * cy + Rt[1, 2] * cz
-                pz = Rt[2, 0] * cx + Rt[2, 1] * cy + Rt[2, 2] * cz
-                r = np.sqrt(px * px + py * py + pz * pz)
+                r, row, col = _project_offset(Rt, cx, cy, cz, H, W)
                 if r < min_range or r > max_range:
                     continue
-                theta = _atan2(px, pz)
-                phi = _atan2(-py, np.sqrt(px * px + pz * pz))
-                col = int(np.floor((theta + np.pi) * W / two_pi)) % W
-                row = int(np.floor((0.5 * np.pi - phi) * H / np.pi))
-                if row < 0:
-                    row = 0
-                elif row >= H:
-                    row = H - 1
                 ro = depth[row, col]
                 if ro <= 0.0:
                     continue
@@ -191,24 +198,12 @@ def _tile_minmax(fthr, othr):
 @nb.njit(cache=True)
 def _voxel_test(depth, fthr, Rt, t, h, lo, i, j, k, eps_abs, eps_rel, min_range, max_range, extent, F, O):
     H, W = depth.shape
-    two_pi = 2.0 * np.pi
     cx = (i + lo[0] + 0.5) * h - t[0]
     cy = (j + lo[1] + 0.5) * h - t[1]
     cz = (k + lo[2] + 0.5) * h - t[2]
-    px = Rt[0, 0] * cx + Rt[0, 1] * cy + Rt[0, 2] * cz
-    py = Rt[1, 0] * cx + Rt[1, 1] * cy + Rt[1, 2] * cz
-    pz = Rt[2, 0] * cx + Rt[2, 1] * cy + Rt[2, 2] * cz
-    r = np.sqrt(px * px + py * py + pz * pz)
+    r, row, col = _project_offset(Rt, cx, cy, cz, H, W)
     if r < min_range or r > max_range:
         return
-    theta = _atan2(px, pz)
-    phi = _atan2(-py, np.sqrt(px * px + pz * pz))
-    col = int(np.floor((theta + np.pi) * W / two_pi)) % W
-    row = int(np.floor((0.5 * np.pi - phi) * H / np.pi))
-    if row < 0:
-        row = 0
-    elif row >= H:
-        row = H - 1
     ro = depth[row, col]
     if ro <= 0.0:
         return
