@@ -101,6 +101,15 @@ def kernel_inverse_cov(E_world: np.ndarray, sigma: np.ndarray):
 N_CHUNKS = 2  # points are split into this many fixed chunks (deterministic whatever the thread count)
 
 
+@nb.njit(cache=True, inline="always")
+def _span(c, a, h, lo, n):
+    """Grid-local indices (first, last) of the voxels whose centres lie in [c - a, c + a] (metres),
+    clipped to the frame box of ``n`` voxels starting at lattice index ``lo``."""
+    first = max(int(np.ceil((c - a) / h - 0.5)) - lo, 0)
+    last = min(int(np.floor((c + a) / h - 0.5)) - lo, n - 1)
+    return first, last
+
+
 @nb.njit(cache=True, parallel=True)
 def _splat_psvf(x, P, half, w, kappa, h, lo, grids):
     """Add the truncated Gaussians into ``grids[chunk]`` (dense frame-local float64 grids)."""
@@ -115,12 +124,9 @@ def _splat_psvf(x, P, half, w, kappa, h, lo, grids):
             a00, a01, a02 = P[p, 0, 0], P[p, 0, 1], P[p, 0, 2]
             a11, a12, a22 = P[p, 1, 1], P[p, 1, 2], P[p, 2, 2]
             wp = w[p]
-            i0 = max(int(np.ceil((px - kappa * half[p, 0]) / h - 0.5)) - lo[0], 0)
-            i1 = min(int(np.floor((px + kappa * half[p, 0]) / h - 0.5)) - lo[0], nx - 1)
-            j0 = max(int(np.ceil((py - kappa * half[p, 1]) / h - 0.5)) - lo[1], 0)
-            j1 = min(int(np.floor((py + kappa * half[p, 1]) / h - 0.5)) - lo[1], ny - 1)
-            k0 = max(int(np.ceil((pz - kappa * half[p, 2]) / h - 0.5)) - lo[2], 0)
-            k1 = min(int(np.floor((pz + kappa * half[p, 2]) / h - 0.5)) - lo[2], nz - 1)
+            i0, i1 = _span(px, kappa * half[p, 0], h, lo[0], nx)
+            j0, j1 = _span(py, kappa * half[p, 1], h, lo[1], ny)
+            k0, k1 = _span(pz, kappa * half[p, 2], h, lo[2], nz)
             for i in range(i0, i1 + 1):
                 dx = (i + lo[0] + 0.5) * h - px
                 for j in range(j0, j1 + 1):
@@ -154,12 +160,9 @@ def _splat_box(x, P, half, w, er, sr, kappa, h, lo, grids):
             rlim = b + kappa * s
             wp = w[p]
             ax, ay, az = kappa * half[p, 0] + b * abs(ex), kappa * half[p, 1] + b * abs(ey), kappa * half[p, 2] + b * abs(ez)
-            i0 = max(int(np.ceil((px - ax) / h - 0.5)) - lo[0], 0)
-            i1 = min(int(np.floor((px + ax) / h - 0.5)) - lo[0], nx - 1)
-            j0 = max(int(np.ceil((py - ay) / h - 0.5)) - lo[1], 0)
-            j1 = min(int(np.floor((py + ay) / h - 0.5)) - lo[1], ny - 1)
-            k0 = max(int(np.ceil((pz - az) / h - 0.5)) - lo[2], 0)
-            k1 = min(int(np.floor((pz + az) / h - 0.5)) - lo[2], nz - 1)
+            i0, i1 = _span(px, ax, h, lo[0], nx)
+            j0, j1 = _span(py, ay, h, lo[1], ny)
+            k0, k1 = _span(pz, az, h, lo[2], nz)
             for i in range(i0, i1 + 1):
                 dx = (i + lo[0] + 0.5) * h - px
                 for j in range(j0, j1 + 1):
@@ -540,12 +543,9 @@ def _splat_axis(x, Pt, half, w, ax, sa, bb, kappa, h, lo, grids):
             b = bb[p]
             rlim = b + kappa * s
             wp = w[p]
-            i0 = max(int(np.ceil((px - half[p, 0]) / h - 0.5)) - lo[0], 0)
-            i1 = min(int(np.floor((px + half[p, 0]) / h - 0.5)) - lo[0], nx - 1)
-            j0 = max(int(np.ceil((py - half[p, 1]) / h - 0.5)) - lo[1], 0)
-            j1 = min(int(np.floor((py + half[p, 1]) / h - 0.5)) - lo[1], ny - 1)
-            k0 = max(int(np.ceil((pz - half[p, 2]) / h - 0.5)) - lo[2], 0)
-            k1 = min(int(np.floor((pz + half[p, 2]) / h - 0.5)) - lo[2], nz - 1)
+            i0, i1 = _span(px, half[p, 0], h, lo[0], nx)
+            j0, j1 = _span(py, half[p, 1], h, lo[1], ny)
+            k0, k1 = _span(pz, half[p, 2], h, lo[2], nz)
             for i in range(i0, i1 + 1):
                 dx = (i + lo[0] + 0.5) * h - px
                 for j in range(j0, j1 + 1):
