@@ -25,7 +25,6 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
-from ..geometry.lattice import pack_keys, unpack_keys
 
 FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored / FIXED_SCALE
 BLOCK = 8  # voxels per block edge
@@ -392,13 +391,3 @@ class VoxelMemory:
 
     def __len__(self) -> int:
         return len(self.nonzero()[0])
-
-
-def keys_to_index(keys: np.ndarray) -> np.ndarray:
-    """Voxel indices (n, 3) int64 of keys (n,) int64."""
-    return unpack_keys(keys)
-
-
-def index_to_keys(index: np.ndarray) -> np.ndarray:
-    """Keys (n,) int64 of voxel indices (n, 3) int."""
-    return pack_keys(index)
