@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from panovocc_cli.classes import EVAL8, OPEN4
-from panovocc_cli.datasets.ply import read_ply
+from panovocc_cli.io.ply import read_ply
 from panovocc_cli.datasets.replica import read_replica_scene, write_replica_scene
 from panovocc_cli.datasets.synth import CAM_Z, CLEARANCE, MAX_TILT_DEG, SynthConfig, generate_scene, run_synth
 from panovocc_cli.errors import PanovoccError

@@ -19,7 +19,7 @@ from ..classes import UNLABELED, canonical_name
 from ..errors import PanovoccError
 from ..io.atomic import write_text
 from ..io.jsonfile import read_json
-from .ply import read_ply, write_ply
+from ..io.ply import read_ply, write_ply
 from .scene import Scene, split_polygons
 
 MESH_PATH = Path("habitat") / "mesh_semantic.ply"

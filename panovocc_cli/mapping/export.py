@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.lattice import index_to_center, unpack_keys
-from ..io.atomic import atomic_path
+from ..io.ply import write_ply
 from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .memory import FIXED_SCALE
 from .params import OccupancyParams
@@ -84,17 +84,9 @@ def write_ply_points(path: str | Path, points: np.ndarray, colors: np.ndarray) -
     """
     pts = np.asarray(points, np.float32).reshape(-1, 3)
     col = np.asarray(colors, np.uint8).reshape(-1, 3)
-    rec = np.empty(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                   ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
-    rec["red"], rec["green"], rec["blue"] = col[:, 0], col[:, 1], col[:, 2]
-    header = ("ply\nformat binary_little_endian 1.0\ncomment panovocc occupied voxel centres\n"
-              f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(header.encode("ascii"))
-            f.write(rec.tobytes())
+    vertex = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "red": col[:, 0], "green": col[:, 1], "blue": col[:, 2]}
+    types = [("x", "float"), ("y", "float"), ("z", "float"), ("red", "uchar"), ("green", "uchar"), ("blue", "uchar")]
+    write_ply(path, vertex, types, comment="panovocc occupied voxel centres")
 
 
 def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean: np.ndarray | None = None):

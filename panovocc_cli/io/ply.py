@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PanovoccError
-from ..io.atomic import atomic_path
+from .atomic import atomic_path
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -214,36 +214,41 @@ def _read_ascii(body: bytes, elements: list[PlyElement], path: Path) -> PlyMesh:
 
 
 def write_ply(path: str | Path, vertex: dict[str, np.ndarray], vertex_types: list[tuple[str, str]],
-              faces: np.ndarray, face_props: dict[str, np.ndarray], face_types: list[tuple[str, str]],
-              list_name: str = "vertex_indices") -> None:
-    """Atomically write a binary little-endian PLY.
+              faces: np.ndarray | None = None, face_props: dict[str, np.ndarray] | None = None,
+              face_types: list[tuple[str, str]] = (), list_name: str = "vertex_indices",
+              comment: str | None = None) -> None:
+    """Atomically write a binary little-endian PLY (a mesh, or a point cloud when ``faces`` is None).
 
     Parameters
     ----------
     vertex : name -> (V,) array; written in the order of ``vertex_types`` [(name, ply type), ...]
-    faces : (F, n) int, polygons of one size n (3 or 4), written as ``list uchar int``
+    faces : (F, n) int, polygons of one size n (3 or 4), written as ``list uchar int``; None: no face element
     face_props : name -> (F,) array, written after the list in the order of ``face_types``
+    comment : one header comment line, optional
     """
-    faces = np.asarray(faces)
     nv = len(next(iter(vertex.values())))
     vdt = np.dtype([(n, "<" + _TYPES[t]) for n, t in vertex_types])
     varr = np.empty(nv, dtype=vdt)
     for n, _ in vertex_types:
         varr[n] = vertex[n]
-    k = faces.shape[1]
-    fdt = np.dtype([("n", "u1"), ("idx", "<i4", (k,))] + [(n, "<" + _TYPES[t]) for n, t in face_types])
-    farr = np.empty(len(faces), dtype=fdt)
-    farr["n"] = k
-    farr["idx"] = faces
-    for n, _ in face_types:
-        farr[n] = face_props[n]
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {nv}"]
-    header += [f"property {t} {n}" for n, t in vertex_types]
-    header += [f"element face {len(faces)}", f"property list uchar int {list_name}"]
-    header += [f"property {t} {n}" for n, t in face_types]
+    header = ["ply", "format binary_little_endian 1.0"] + ([f"comment {comment}"] if comment else [])
+    header += [f"element vertex {nv}"] + [f"property {t} {n}" for n, t in vertex_types]
+    farr = None
+    if faces is not None:
+        faces = np.asarray(faces)
+        k = faces.shape[1]
+        fdt = np.dtype([("n", "u1"), ("idx", "<i4", (k,))] + [(n, "<" + _TYPES[t]) for n, t in face_types])
+        farr = np.empty(len(faces), dtype=fdt)
+        farr["n"] = k
+        farr["idx"] = faces
+        for n, _ in face_types:
+            farr[n] = face_props[n]
+        header += [f"element face {len(faces)}", f"property list uchar int {list_name}"]
+        header += [f"property {t} {n}" for n, t in face_types]
     header.append("end_header")
     with atomic_path(path, suffix=".ply") as tmp:
         with open(tmp, "wb") as f:
             f.write(("\n".join(header) + "\n").encode("ascii"))
             f.write(varr.tobytes())
-            f.write(farr.tobytes())
+            if farr is not None:
+                f.write(farr.tobytes())
