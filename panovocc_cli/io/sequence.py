@@ -152,15 +152,26 @@ class Sequence:
         return lab
 
 
+def frame_images(seq: str | Path, i: int, rgb: np.ndarray, depth_m: np.ndarray, labels: np.ndarray | None,
+                 depth_scale: float = 1000.0) -> list[tuple[Path, np.ndarray]]:
+    """The PNGs of frame ``i`` as (path, encoded image) pairs, in the layout above.
+
+    rgb (H, W, 3) uint8; depth (H, W) metres -> uint16 ``depth * depth_scale``; labels (H, W) int ids
+    -> uint16 (omitted when None). Callers write each with :func:`io.images.write_png`, in any order.
+    """
+    seq = Path(seq)
+    stem = frame_stem(i)
+    out = [(seq / "rgb" / f"{stem}.png", rgb), (seq / "depth" / f"{stem}.png", depth_to_uint16(depth_m, depth_scale))]
+    if labels is not None:
+        out.append((seq / "semantic" / f"{stem}.png", np.asarray(labels).astype(np.uint16)))
+    return out
+
+
 def write_frame(seq: str | Path, i: int, rgb: np.ndarray, depth_m: np.ndarray, labels: np.ndarray | None,
                 depth_scale: float = 1000.0) -> None:
     """Write frame ``i``: rgb (H, W, 3) uint8, depth (H, W) metres, labels (H, W) int ids or None."""
-    seq = Path(seq)
-    stem = frame_stem(i)
-    write_png(seq / "rgb" / f"{stem}.png", rgb)
-    write_png(seq / "depth" / f"{stem}.png", depth_to_uint16(depth_m, depth_scale))
-    if labels is not None:
-        write_png(seq / "semantic" / f"{stem}.png", np.asarray(labels).astype(np.uint16))
+    for path, image in frame_images(seq, i, rgb, depth_m, labels, depth_scale):
+        write_png(path, image)
 
 
 def write_sequence_poses(seq: str | Path, T_world_cam: np.ndarray) -> None:

@@ -59,17 +59,6 @@ def make_renderer(scene, width: int, backend: str, threads: int = 0):
     raise PanovoccError(f"unknown backend {backend!r} (expected one of {', '.join(BACKENDS)})")
 
 
-def _frame_jobs(seq: Path, i: int, rgb, depth, labels) -> list:
-    """The three PNG writes of frame ``i`` (the layout of :func:`panovocc_cli.io.sequence.write_frame`)."""
-    from ..io.images import depth_to_uint16, write_png
-    from ..io.sequence import frame_stem
-
-    stem = frame_stem(i)
-    return [(write_png, seq / "rgb" / f"{stem}.png", rgb),
-            (write_png, seq / "depth" / f"{stem}.png", depth_to_uint16(depth, DEPTH_SCALE)),
-            (write_png, seq / "semantic" / f"{stem}.png", np.asarray(labels).astype(np.uint16))]
-
-
 def run_render(cfg: RenderConfig) -> dict:
     """Render ``cfg.scene`` along the trajectory into ``cfg.out``; returns a summary dict."""
     from tqdm import tqdm
@@ -77,7 +66,8 @@ def run_render(cfg: RenderConfig) -> dict:
     from ..datasets.replica import TRAJ_NAME, read_replica_scene
     from ..io.atomic import atomic_dir
     from ..io.poses import read_poses
-    from ..io.sequence import SequenceMeta, write_meta, write_sequence_poses
+    from ..io.images import write_png
+    from ..io.sequence import SequenceMeta, frame_images, write_meta, write_sequence_poses
     from .noise import NOISE_PARAMS, degrade
 
     W, H = check_erp_size(cfg.width)
@@ -119,7 +109,8 @@ def run_render(cfg: RenderConfig) -> dict:
                     depth)
                 depth, rgb = degrade(depth, rgb, inc, np.isin(fr.labels, glass_ids), cfg.seed, i)
             valid += float((depth > 0).mean())
-            pending.append([pool.submit(*job) for job in _frame_jobs(tmp, i, rgb, depth, fr.labels)])
+            pending.append([pool.submit(write_png, path, image)
+                            for path, image in frame_images(tmp, i, rgb, depth, fr.labels, DEPTH_SCALE)])
             while len(pending) > ahead:
                 for f in pending.pop(0):
                     f.result()
