@@ -15,7 +15,7 @@ from ..errors import PanovoccError
 from .freespace import carve
 from .memory import FIXED_SCALE, Delta
 from .params import GeometryParams
-from .psvf import lift_kernels, lift_surfels, splat, splat_axis
+from .psvf import lift_kernels, splat, splat_axis, surfels_for
 
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
 
@@ -87,10 +87,7 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     if p.extent not in ("box", "centre", "surfel"):
         raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected surfel, box or centre)")
     if p.kernel == "psvf" and p.extent == "surfel":
-        x, Pt, half, w, ax, sa, bb, _ = lift_surfels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range,
-                                                     p.max_range, p.w_pole, p.r_half, c_norm, p.voxel_size,
-                                                     p.kappa, p.n_floor, p.c_min, p.disc_k, p.surfel_fit,
-                                                     p.edge_abs)
+        x, Pt, half, w, ax, sa, bb, _ = surfels_for(depth, T_world_cam, p, c_norm)
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
         A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)

@@ -524,6 +524,13 @@ def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
                         float(disc_k), bool(fit), float(tol_abs))
 
 
+def surfels_for(depth: np.ndarray, T_world_cam: np.ndarray, p, c_norm: float):
+    """:func:`lift_surfels` with the parameters of a :class:`~.params.GeometryParams` ``p``."""
+    return lift_surfels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range, p.w_pole,
+                        p.r_half, c_norm, p.voxel_size, p.kappa, p.n_floor, p.c_min, p.disc_k, p.surfel_fit,
+                        p.edge_abs)
+
+
 @nb.njit(cache=True, parallel=True)
 def _splat_axis(x, Pt, half, w, ax, sa, bb, kappa, h, lo, grids):
     """Tangential Gaussian (Pt) times P(axis coordinate within the voxel's support +-b along the axis)."""
