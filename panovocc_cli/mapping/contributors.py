@@ -20,31 +20,42 @@ from .psvf import lift_kernels, splat, splat_axis, surfels_for
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
+def _voxel_row(a, o, scale, n_min, drop):
+    """A voxel's fixed-point support and whether it enters the delta (support or a valid comparison)."""
+    q = np.int64(np.rint(a * scale))
+    if drop and q <= n_min:
+        q = 0
+    return q, o != 0 or q != 0
+
+
+@nb.njit(cache=True, parallel=True)
 def _extract(A, F, O, lo, scale, n_min, drop):
+    """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support or O != 0.
+    Two passes over slabs of constant i (count, then fill at each slab's prefix offset)."""
     nx, ny, nz = A.shape
-    cnt = 0
-    for i in range(nx):
+    counts = np.zeros(nx + 1, np.int64)
+    for i in nb.prange(nx):
+        c = 0
         for j in range(ny):
             for k in range(nz):
-                a = np.int64(np.rint(A[i, j, k] * scale))
-                if drop and a <= n_min:
-                    a = 0
-                if O[i, j, k] != 0 or a != 0:
-                    cnt += 1
-    keys = np.empty(cnt, np.int64)
-    out = np.zeros((cnt, 4), np.int64)
-    off = 1 << 20
-    n = 0
+                if _voxel_row(A[i, j, k], O[i, j, k], scale, n_min, drop)[1]:
+                    c += 1
+        counts[i + 1] = c
     for i in range(nx):
+        counts[i + 1] += counts[i]
+    cnt = counts[nx]
+    keys = np.empty(cnt, np.int64)
+    out = np.empty((cnt, 4), np.int64)
+    off = 1 << 20
+    for i in nb.prange(nx):
+        n = counts[i]
         ki = (i + lo[0] + off) << 42
         for j in range(ny):
             kj = ki | ((j + lo[1] + off) << 21)
             for k in range(nz):
-                a = np.int64(np.rint(A[i, j, k] * scale))
-                if drop and a <= n_min:
-                    a = 0
-                if O[i, j, k] != 0 or a != 0:
+                a, keep = _voxel_row(A[i, j, k], O[i, j, k], scale, n_min, drop)
+                if keep:
                     keys[n] = kj | (k + lo[2] + off)
                     out[n, 0] = a
                     out[n, 1] = 1 if a > n_min else 0
@@ -54,12 +65,38 @@ def _extract(A, F, O, lo, scale, n_min, drop):
     return keys, out
 
 
+@nb.njit(cache=True)
+def _kernel_bounds(x, half, kappa):
+    """Per-axis min of x - kappa half and max of x + kappa half over the kernels (same values as numpy)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for p in range(x.shape[0]):
+        for d in range(3):
+            lo[d] = min(lo[d], x[p, d] - kappa * half[p, d])
+            hi[d] = max(hi[d], x[p, d] + kappa * half[p, d])
+    return lo, hi
+
+
 def frame_box(x_world, half, kappa, cam_pos, voxel_size: float, max_range: float):
-    """Lattice box (lo, shape) covering the camera and every kernel's bounding box, cut at max_range."""
+    """Lattice box covering the camera and every kernel's bounding box, cut at max_range.
+
+    Parameters
+    ----------
+    x_world : (n, 3) float64, kernel centres, metres, world frame
+    half : (n, 3) float64, per-axis half extents of the kernels' support, metres
+    kappa : float, factor on ``half``
+    cam_pos : (3,) float64, camera centre, metres, world frame
+
+    Returns
+    -------
+    lo : (3,) int64, lattice index of the box's first voxel; shape : (3,) int64, voxels per axis
+    """
     h = voxel_size
     if len(x_world):
-        pmin = np.minimum((x_world - kappa * half).min(axis=0), cam_pos)
-        pmax = np.maximum((x_world + kappa * half).max(axis=0), cam_pos)
+        kmin, kmax = _kernel_bounds(np.ascontiguousarray(x_world, np.float64), np.ascontiguousarray(half, np.float64),
+                                    float(kappa))
+        pmin = np.minimum(kmin, cam_pos)
+        pmax = np.maximum(kmax, cam_pos)
     else:
         pmin = pmax = cam_pos
     pmin = np.maximum(pmin, cam_pos - max_range)
