@@ -160,48 +160,62 @@ def _block_key_and_offset(key):
 
 
 @nb.njit(cache=True)
+def _find(table_keys, table_slots, bkey):
+    """Slot of block ``bkey``, -1 when absent."""
+    mask = np.uint64(table_keys.shape[0] - 1)
+    h = _hash64(bkey) & mask
+    while True:
+        k = table_keys[h]
+        if k == bkey:
+            return table_slots[h]
+        if k == -1:
+            return -1
+        h = (h + np.uint64(1)) & mask
+
+
+@nb.njit(cache=True)
 def _scatter_add(table_keys, table_slots, block_keys, data, n_blocks, keys, vals, cols, sign, start):
-    """Add ``sign * vals`` into ``data`` at ``keys``; returns (index reached, n_blocks).
+    """Add ``sign * vals[:, c]`` into column ``cols[c]`` of ``data`` at ``keys``; returns (index reached,
+    n_blocks). ``cols[c] < 0`` skips column c of ``vals``.
 
     Stops early (index < len(keys)) when the hash table would pass half full or the block storage is
-    full, so the caller can grow them and call again from there.
+    full, so the caller can grow them and call again from there. Block slots are remembered in a small
+    direct-mapped cache indexed by the block's low (j, k) bits: keys in lattice order revisit the same
+    few dozen blocks row after row, so the hash table is probed about once per block and frame.
     """
     cap_table = table_keys.shape[0]
     cap_data = data.shape[0]
     nc = cols.shape[0]
-    last_bkey = np.int64(-1)
-    last_slot = np.int64(-1)
+    run0 = cols[0]
+    for c in range(nc):
+        if cols[c] != cols[0] + c:
+            run0 = -1
+    cache_keys = np.full(64, -1, np.int64)
+    cache_slots = np.zeros(64, np.int64)
     for n in range(start, keys.shape[0]):
         bkey, o = _block_key_and_offset(keys[n])
-        if bkey == last_bkey:  # sorted keys: runs of up to 8 voxels share a block
-            for c in range(nc):
-                data[last_slot, o, cols[c]] += sign * vals[n, c]
-            continue
-        if n_blocks >= cap_data or 2 * (n_blocks + 1) > cap_table:
-            # might need a new block: check without inserting
-            mask = np.uint64(cap_table - 1)
-            h = _hash64(bkey) & mask
-            found = -1
-            while True:
-                k = table_keys[h]
-                if k == bkey:
-                    found = table_slots[h]
-                    break
-                if k == -1:
-                    break
-                h = (h + np.uint64(1)) & mask
-            if found < 0:
-                return n, n_blocks
-            slot = found
+        e = (bkey & 7) | ((bkey >> 18) & 56)  # low 3 bits of the block's k and j indices
+        if cache_keys[e] == bkey:
+            slot = cache_slots[e]
         else:
-            slot, ins = _lookup_insert(table_keys, table_slots, bkey, n_blocks)
-            if ins:
-                block_keys[n_blocks] = bkey
-                n_blocks += 1
-        last_bkey = bkey
-        last_slot = slot
-        for c in range(nc):
-            data[slot, o, cols[c]] += sign * vals[n, c]
+            if n_blocks >= cap_data or 2 * (n_blocks + 1) > cap_table:
+                slot = _find(table_keys, table_slots, bkey)  # might need a new block: look, do not insert
+                if slot < 0:
+                    return n, n_blocks
+            else:
+                slot, ins = _lookup_insert(table_keys, table_slots, bkey, n_blocks)
+                if ins:
+                    block_keys[n_blocks] = bkey
+                    n_blocks += 1
+            cache_keys[e] = bkey
+            cache_slots[e] = slot
+        if run0 >= 0:  # the columns map to one run of memory columns
+            for c in range(nc):
+                data[slot, o, run0 + c] += sign * vals[n, c]
+        else:
+            for c in range(nc):
+                if cols[c] >= 0:
+                    data[slot, o, cols[c]] += sign * vals[n, c]
     return keys.shape[0], n_blocks
 
 
@@ -315,9 +329,7 @@ class VoxelMemory:
         """Add (``sign=+1``) or subtract (``sign=-1``) a delta. Exact integer arithmetic."""
         if len(delta) == 0 or not delta.channels:
             return
-        names = sorted(delta.channels)
-        cols = np.concatenate([self._cols(n, delta.channels[n].shape[1]) for n in names])
-        vals = np.ascontiguousarray(np.concatenate([delta.channels[n] for n in names], axis=1))
+        vals, cols = self._values(delta)
         keys = np.ascontiguousarray(delta.keys)
         start = 0
         while True:
@@ -326,6 +338,30 @@ class VoxelMemory:
             if start >= len(keys):
                 break
             self._grow()
+
+    def _values(self, delta: Delta) -> tuple[np.ndarray, np.ndarray]:
+        """A delta's channels as one (n, m) int64 matrix and, per matrix column, its memory column.
+
+        When every channel is a column slice of one 2-D array (a contributor's rows, e.g. the geometry
+        delta's (n, 4) A N F O), that array is used as is; otherwise the channels are concatenated."""
+        names = sorted(delta.channels)
+        arrs = [delta.channels[n] for n in names]
+        mcols = [self._cols(n, a.shape[1]) for n, a in zip(names, arrs)]
+        base = arrs[0].base
+        if isinstance(base, np.ndarray) and base.ndim == 2 and base.dtype == np.int64 and base.shape[0] == len(delta) \
+                and base.strides[1] == base.itemsize:
+            cols = np.full(base.shape[1], -1, np.int64)
+            start = base.__array_interface__["data"][0]
+            for a, mc in zip(arrs, mcols):
+                off = a.__array_interface__["data"][0] - start
+                c0, rem = divmod(off, base.itemsize)
+                if (a.base is not base or rem or a.strides[0] != base.strides[0] or c0 + a.shape[1] > base.shape[1]
+                        or (a.shape[1] > 1 and a.strides[1] != base.itemsize) or np.any(cols[c0:c0 + a.shape[1]] >= 0)):
+                    break
+                cols[c0:c0 + a.shape[1]] = mc
+            else:
+                return base, cols
+        return np.ascontiguousarray(np.concatenate(arrs, axis=1)), np.concatenate(mcols)
 
     def _grow(self) -> None:
         if 2 * (self.n_blocks + 1) > self._table_keys.shape[0]:
