@@ -69,34 +69,68 @@ def _project_offset(Rt, cx, cy, cz, H, W):
     return _project_cam(px, py, pz, H, W)
 
 
-@nb.njit(cache=True)
-def _angle_tables(H, W):
-    """sin / cos of every pixel-centre latitude (rows) and longitude (columns), as :func:`_carve` used
-    to compute them per voxel (same values)."""
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _free_threshold(ro, q0, q1, q2, q3, eps_abs, eps_rel, stable_k, extent, sp, cp, st, ct, dth, dph, h, Rt):
+    """A pixel's carving threshold: a voxel at range r projecting into it (and compared) is carved iff
+    ``r < ro - eps`` and not ``r > fthr``. ``fthr = -inf`` where the neighbourhood (q0 left, q1 right,
+    q2 up, q3 down; float32 like ro) is unstable or ro invalid; else ``ro - eps``, and with ``extent``
+    minus the voxel box's half-support along the local plane's normal, ``(h / 2) |R n|_1``."""
+    eps = eps_abs + eps_rel * ro
+    tol = stable_k * eps
+    bad = ((ro <= 0.0) | (q0 <= 0.0) | (abs(q0 - ro) > tol) | (q1 <= 0.0) | (abs(q1 - ro) > tol)
+           | (q2 <= 0.0) | (abs(q2 - ro) > tol) | (q3 <= 0.0) | (abs(q3 - ro) > tol))
+    v = ro - eps
+    if extent:
+        # local plane from the neighbour depths: n ~ d - a e_theta - b e_phi, with
+        # a = (dr / r) per unit arc along longitude, b along latitude (camera frame)
+        cphi = max(cp, 1e-3)
+        a = (q1 - q0) / (2.0 * ro * dth * cphi)
+        b = (q2 - q3) / (2.0 * ro * dph)
+        nxc = cp * st - a * ct + b * sp * st
+        nyc = -sp + b * cp
+        nzc = cp * ct + a * st + b * sp * ct
+        # world components (R = Rt^T) and the box half-support along n / cos(incidence)
+        l1 = (abs(Rt[0, 0] * nxc + Rt[1, 0] * nyc + Rt[2, 0] * nzc)
+              + abs(Rt[0, 1] * nxc + Rt[1, 1] * nyc + Rt[2, 1] * nzc)
+              + abs(Rt[0, 2] * nxc + Rt[1, 2] * nyc + Rt[2, 2] * nzc))
+        v = ro - eps - 0.5 * h * l1
+    return -np.inf if bad else v
+
+
+@nb.njit(cache=True, parallel=True, error_model="numpy")
+def _free_thresholds(depth, Rt, h, eps_abs, eps_rel, stable_k, extent):
+    """(H, W) float64 map of :func:`_free_threshold` (longitude wraps, latitude clamps). Interior
+    columns run as a branch-free, vectorised loop."""
+    H, W = depth.shape
     dth = 2.0 * np.pi / W
     dph = np.pi / H
-    sp = np.empty(H)
-    cp = np.empty(H)
-    for row in range(H):
-        phi_c = 0.5 * np.pi - (row + 0.5) * dph
-        sp[row], cp[row] = np.sin(phi_c), np.cos(phi_c)
     st = np.empty(W)
     ct = np.empty(W)
     for col in range(W):
         th_c = (col + 0.5) * dth - np.pi
         st[col], ct[col] = np.sin(th_c), np.cos(th_c)
-    return sp, cp, st, ct
+    fthr = np.empty((H, W))
+    for row in nb.prange(H):
+        phi_c = 0.5 * np.pi - (row + 0.5) * dph
+        sp, cp = np.sin(phi_c), np.cos(phi_c)
+        cur, up, dn, out = depth[row], depth[max(row - 1, 0)], depth[min(row + 1, H - 1)], fthr[row]
+        for col in (0, W - 1):  # the wrapping columns
+            cl = col - 1 if col > 0 else W - 1
+            cr = col + 1 if col < W - 1 else 0
+            out[col] = _free_threshold(cur[col], cur[cl], cur[cr], up[col], dn[col], eps_abs, eps_rel, stable_k,
+                                       extent, sp, cp, st[col], ct[col], dth, dph, h, Rt)
+        for col in range(1, W - 1):
+            out[col] = _free_threshold(cur[col], cur[col - 1], cur[col + 1], up[col], dn[col], eps_abs, eps_rel,
+                                       stable_k, extent, sp, cp, st[col], ct[col], dth, dph, h, Rt)
+    return fthr
 
 
 @nb.njit(cache=True, parallel=True, error_model="numpy")
-def _carve(depth, Rt, t, h, lo, nx, ny, nz, eps_abs, eps_rel, stable_k, min_range, max_range, extent, F, O):
+def _carve(depth, fthr, Rt, t, h, lo, nx, ny, nz, min_range, max_range, eps_abs, eps_rel, F, O):
     """Exhaustive test, per voxel. Each (i, j) column of nz voxels is first projected in a branch-free
     loop (vectorised by LLVM: the same IEEE operations in the same order as a scalar loop, so the same
-    bits), then tested voxel by voxel."""
+    bits), then tested voxel by voxel against the depth and the pixel's free threshold ``fthr``."""
     H, W = depth.shape
-    dth = 2.0 * np.pi / W
-    dph = np.pi / H
-    sp_r, cp_r, st_c, ct_c = _angle_tables(H, W)
     czs = np.empty(nz)
     for k in range(nz):
         czs[k] = (k + lo[2] + 0.5) * h - t[2]
@@ -129,34 +163,8 @@ def _carve(depth, Rt, t, h, lo, nx, ny, nz, eps_abs, eps_rel, stable_k, min_rang
                 if r > ro + eps:
                     continue
                 O[i, j, k] = 1
-                if r < ro - eps:
-                    tol = stable_k * eps
-                    ok = True
-                    cl = col - 1 if col > 0 else W - 1
-                    cr = col + 1 if col < W - 1 else 0
-                    rn = (depth[row, cl], depth[row, cr], depth[max(row - 1, 0), col], depth[min(row + 1, H - 1), col])
-                    for q in rn:
-                        if q <= 0.0 or abs(q - ro) > tol:
-                            ok = False
-                    if ok and extent:
-                        # local plane from the neighbour depths: n ~ d - a e_theta - b e_phi, with
-                        # a = (dr / r) per unit arc along longitude, b along latitude (camera frame)
-                        sp, cp = sp_r[row], cp_r[row]
-                        cphi = max(cp, 1e-3)
-                        a = (rn[1] - rn[0]) / (2.0 * ro * dth * cphi)
-                        b = (rn[2] - rn[3]) / (2.0 * ro * dph)
-                        st, ct = st_c[col], ct_c[col]
-                        nxc = cp * st - a * ct + b * sp * st
-                        nyc = -sp + b * cp
-                        nzc = cp * ct + a * st + b * sp * ct
-                        # world components (R = Rt^T) and the box half-support along n / cos(incidence)
-                        l1 = (abs(r00 * nxc + r10 * nyc + r20 * nzc)
-                              + abs(r01 * nxc + r11 * nyc + r21 * nzc)
-                              + abs(r02 * nxc + r12 * nyc + r22 * nzc))
-                        if r > ro - eps - 0.5 * h * l1:
-                            ok = False
-                    if ok:
-                        F[i, j, k] = 1
+                if r < ro - eps and not r > fthr[row, col]:
+                    F[i, j, k] = 1
 
 
 BLOCK = 8  # hierarchical test: voxels per block edge
@@ -413,7 +421,8 @@ def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.
         _carve_hier(depth, fthr, othr, fmin, omax, fmax, omin, Rt, t, float(voxel_size), lo, shape[0], shape[1], shape[2],
                     float(eps_abs), float(eps_rel), float(min_range), float(max_range), bool(extent), F, O)
         return F, O
-    _carve(depth, Rt, t, float(voxel_size), lo,
-           shape[0], shape[1], shape[2], float(eps_abs), float(eps_rel), float(stable_k), float(min_range),
-           float(max_range), bool(extent), F, O)
+    fthr = _free_thresholds(depth, Rt, float(voxel_size), float(eps_abs), float(eps_rel), float(stable_k),
+                            bool(extent))
+    _carve(depth, fthr, Rt, t, float(voxel_size), lo, shape[0], shape[1], shape[2], float(min_range),
+           float(max_range), float(eps_abs), float(eps_rel), F, O)
     return F, O
