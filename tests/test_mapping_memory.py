@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from panovocc_cli.geometry.lattice import pack_keys
+from panovocc_cli.mapping import memory
 from panovocc_cli.mapping.memory import (FIXED_SCALE, ChannelSpec, Delta, VoxelMemory, merge_deltas, quantize)
 
 
@@ -40,12 +41,14 @@ def test_add_remove_is_bit_identical_and_order_free():
     np.testing.assert_array_equal(got, sums)
 
 
-def test_removing_everything_leaves_an_empty_memory():
+def test_removing_everything_leaves_an_empty_memory(monkeypatch):
+    monkeypatch.setattr(memory, "INITIAL_BYTES", 0)  # start at 256 blocks: forces table and storage growth
     rng = np.random.default_rng(1)
-    d = _random_delta(rng, n=20000, span=200)  # many blocks: forces table and storage growth
+    d = _random_delta(rng, n=20000, span=200)
     m = VoxelMemory(0.08)
+    assert m._data.shape[0] == 256
     m.add(d)
-    assert m.n_blocks > 256
+    assert m.n_blocks > 256 and m._data.shape[0] > 256
     keys, ch = m.nonzero()
     np.testing.assert_array_equal(keys, d.keys[np.any(np.hstack(list(d.channels.values())) != 0, axis=1)])
     m.add(d, -1)
@@ -68,3 +71,46 @@ def test_generic_channels_and_merge():
     assert got["A"][0, 0] == FIXED_SCALE and got["E"][0, 0] == FIXED_SCALE // 4
     with pytest.raises(ValueError):
         m.add(Delta(k1[o1], {"E": np.zeros((2, 3), np.int64)}))  # wrong width
+
+
+def _sums_by_key(deltas, name):
+    allk = np.concatenate([d.keys for d in deltas])
+    allv = np.concatenate([d.channels[name] for d in deltas])
+    uk, inv = np.unique(allk, return_inverse=True)
+    out = np.zeros((len(uk), allv.shape[1]), np.int64)
+    np.add.at(out, inv, allv)
+    return uk, out
+
+
+def test_channels_sliced_from_one_rows_array_add_like_separate_arrays(monkeypatch):
+    """add() reads a contributor's (n, m) rows in place when every channel is a column slice of it
+    (any column order, widths > 1, columns left out, a strided base): same memory as copies."""
+    monkeypatch.setattr(memory, "INITIAL_BYTES", 0)
+    specs = [ChannelSpec("A", 1, "fixed"), ChannelSpec("E", 3, "int"), ChannelSpec("F", 1), ChannelSpec("O", 1)]
+    rng = np.random.default_rng(3)
+    deltas_view, deltas_copy = [], []
+    for n_frame in range(4):
+        keys = np.unique(pack_keys(rng.integers(-90, 90, size=(6000, 3))))
+        rows = rng.integers(-3, 1000, size=(len(keys), 7))
+        if n_frame == 3:  # a base whose columns are not adjacent in memory
+            rows = np.ascontiguousarray(np.repeat(rows, 2, axis=1))[:, ::2]
+        ch = {"O": rows[:, 0:1], "E": rows[:, 1:4], "A": rows[:, 5:6]}  # column 4 and 6 belong to no channel
+        if n_frame == 1:
+            ch["F"] = rows[:, 6:7]
+        deltas_view.append(Delta(keys, ch))
+        deltas_copy.append(Delta(keys, {k: v.copy() for k, v in ch.items()}))
+    vals, cols = VoxelMemory(0.08, specs)._values(deltas_view[0])
+    assert vals is deltas_view[0].channels["O"].base and cols.tolist() == [5, 1, 2, 3, -1, 0, -1]
+    a, b = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
+    for dv, dc in zip(deltas_view, deltas_copy):
+        a.add(dv)
+        b.add(dc)
+    a.add(deltas_view[2], -1)
+    b.add(deltas_copy[2], -1)
+    ta, tb = a.to_arrays(), b.to_arrays()
+    for k in ta:
+        np.testing.assert_array_equal(ta[k], tb[k])
+    kept = [d for i, d in enumerate(deltas_copy) if i != 2]
+    for name in ("A", "E", "O"):
+        uk, want = _sums_by_key(kept, name)
+        np.testing.assert_array_equal(a.gather(uk)[name], want)

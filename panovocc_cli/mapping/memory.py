@@ -30,6 +30,7 @@ FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored /
 BLOCK = 8  # voxels per block edge
 BLOCK_VOXELS = BLOCK ** 3
 _EMPTY = np.int64(-1)
+INITIAL_BYTES = 64 * 2 ** 20  # initial block storage of a memory (grows by doubling)
 
 
 @dataclass(frozen=True)
@@ -305,10 +306,15 @@ class VoxelMemory:
             self.offsets[c.name] = o
             o += c.width
         self.total_width = o
-        self._table_keys = np.full(1024, -1, np.int64)
-        self._table_slots = np.zeros(1024, np.int64)
-        self._block_keys = np.zeros(256, np.int64)
-        self._data = np.zeros((256, BLOCK_VOXELS, self.total_width), np.int64)
+        # initial block storage: INITIAL_BYTES of zeros (untouched pages cost no memory), so that a
+        # room-sized map never pays for growing (copying) its storage; a power of two, >= 256 blocks
+        cap = 256
+        while 2 * cap * BLOCK_VOXELS * self.total_width * 8 <= INITIAL_BYTES:
+            cap *= 2
+        self._table_keys = np.full(4 * cap, -1, np.int64)
+        self._table_slots = np.zeros(4 * cap, np.int64)
+        self._block_keys = np.zeros(cap, np.int64)
+        self._data = np.zeros((cap, BLOCK_VOXELS, self.total_width), np.int64)
         self.n_blocks = 0
 
     def spec(self, name: str) -> ChannelSpec:
