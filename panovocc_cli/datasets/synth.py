@@ -30,7 +30,8 @@ WALL_T = 0.12  # wall thickness, metres
 CLEARANCE = 0.30  # minimum camera distance to walls and furniture, metres
 PLAN_CLEARANCE = 0.33  # clearance demanded of the raster path (margin for smoothing)
 RASTER = 0.05  # planning raster, metres
-CAM_Z = (1.2, 1.7)  # camera height range, metres
+CAM_Z = (1.2, 1.7)  # camera height range above the floor, metres
+SHIFT_STREAM = 104729  # random stream of the home's offset from the origin (see generate_scene)
 MAX_TILT_DEG = 6.0  # |pitch| and |roll| bound of the trajectory, degrees
 MAX_ROOMS = 6
 
@@ -899,7 +900,8 @@ def generate_scene(seed: int = DEFAULT_SEED, rooms: int | None = None, frames: i
     dict with ``vertices`` (4F, 3) float64 metres (+Z up), ``quads`` (F, 4) int32, ``face_object`` (F,)
     int32, ``colors`` (4F, 3) uint8, ``object_classes`` list[str] (Replica names, e.g. ``tv-screen``),
     ``T_world_cam`` (frames, 4, 4) float64 (OpenCV axes), ``rooms`` list of (x0, x1, y0, y1) interiors,
-    ``ceiling_height`` float metres.
+    ``floor_z`` float metres (the floor's height: the home is shifted by a seeded 0.05-0.95 m on each
+    axis so that no wall or floor lies on a voxel face), ``ceiling_height`` float metres above the floor.
     """
     if rooms is not None and not 1 <= rooms <= MAX_ROOMS:
         raise PanovoccError(f"--rooms must be between 1 and {MAX_ROOMS}, got {rooms}")
@@ -920,9 +922,16 @@ def generate_scene(seed: int = DEFAULT_SEED, rooms: int | None = None, frames: i
         if not set(REQUIRED) <= classes:
             continue
         v, q, obj, col = house.mb.finish()
+        # the home is laid out from (0, 0, 0); a seeded sub-metre shift keeps its walls and floor off
+        # the voxel lattice's faces, as in a real scan (a surface exactly on a face makes a tie of GT)
+        sx, sy, sz = np.random.default_rng([seed, SHIFT_STREAM]).uniform(0.05, 0.95, 3)
+        v = v + np.array([sx, sy, sz])
+        T = T.copy()
+        T[:, :3, 3] += np.array([sx, sy, sz])
         return {"vertices": v, "quads": q, "face_object": obj, "colors": col,
                 "object_classes": list(house.mb.object_classes), "T_world_cam": T,
-                "rooms": [(r.x0, r.x1, r.y0, r.y1) for r in house.rooms], "ceiling_height": house.hc}
+                "rooms": [(r.x0 + sx, r.x1 + sx, r.y0 + sy, r.y1 + sy) for r in house.rooms],
+                "floor_z": float(sz), "ceiling_height": house.hc}
     raise PanovoccError(f"could not lay out a {k}-room scene for seed {seed} (try another seed)")
 
 
