@@ -41,13 +41,21 @@ def map_cmd(
         None, help=f"Free-space margin eps_rel (dimensionless, per metre of range) (default: {_G.eps_rel})."),
     max_range: Optional[float] = typer.Option(
         None, help=f"Depths and voxels farther than this are ignored, metres (default: {_G.max_range})."),
+    rule: Optional[str] = typer.Option(
+        None, help=f"Occupancy rule: frequency (N/O - lambda_n F/O >= nu) or score (the paper's g with tau_s, "
+                   f"tau_w, gamma_f) (default: {_O.rule})."),
+    nu: Optional[float] = typer.Option(
+        None, help=f"Frequency rule: least share of valid observations that saw surface in the voxel (0..1) "
+                   f"(default: {_O.nu})."),
+    lambda_n: Optional[float] = typer.Option(
+        None, help=f"Frequency rule: weight of the free-space share F/O (default: {_O.lambda_n})."),
     lambda_f: Optional[float] = typer.Option(
-        None, help=f"Weight lambda_f of the free-space ratio in the signed score (default: {_O.lambda_f})."),
+        None, help=f"Score rule: weight lambda_f of the free-space ratio in the signed score (default: {_O.lambda_f})."),
     tau_s: Optional[float] = typer.Option(
-        None, help=f"Strong support threshold tau_s on g (per-frame support units) (default: {_O.tau_s})."),
-    tau_w: Optional[float] = typer.Option(None, help=f"Weak support threshold tau_w on g (default: {_O.tau_w})."),
+        None, help=f"Score rule: strong support threshold tau_s on g (per-frame support units) (default: {_O.tau_s})."),
+    tau_w: Optional[float] = typer.Option(None, help=f"Score rule: weak support threshold tau_w on g (default: {_O.tau_w})."),
     gamma_f: Optional[float] = typer.Option(
-        None, help=f"Largest free-space ratio F/O for weak support (0..1) (default: {_O.gamma_f})."),
+        None, help=f"Score rule: largest free-space ratio F/O for weak support (0..1) (default: {_O.gamma_f})."),
     segmenter: Optional[str] = typer.Option(
         None, help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none (geometry "
                    "only, occupied voxels 254). Default: simulated when SEQ has labels, else you must choose."),
@@ -86,7 +94,8 @@ def map_cmd(
             segmenter = "auto"
         geo = GeometryParams(voxel_size=voxel_size, kernel=kernel, **_given(
             kappa=kappa, alpha=alpha, beta=beta, eps_abs=eps_abs, eps_rel=eps_rel, max_range=max_range))
-        occ = OccupancyParams(**_given(lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w, gamma_f=gamma_f))
+        occ = OccupancyParams(**_given(rule=rule, nu=nu, lambda_n=lambda_n, lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w,
+                                       gamma_f=gamma_f))
         sem = SemanticParams(segmenter=segmenter, vocab=vocab, noise=1.0 if noise is None else noise,
                              seed=0 if seed is None else seed, use_gsc=not no_gsc, ply_color=ply_color or "class")
         cfg = MapConfig(seq=str(seq), out=str(out), poses=None if poses is None else str(poses),

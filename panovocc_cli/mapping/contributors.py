@@ -20,26 +20,39 @@ from .psvf import lift_kernels, splat, splat_axis, surfels_for
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
 
 
+@nb.njit(cache=True)
+def _mark_hits(x, h, lo, hits):
+    """Set ``hits`` (uint8 frame grid) to 1 in the voxels that contain a measurement x (metres, world)."""
+    nx, ny, nz = hits.shape
+    for p in range(x.shape[0]):
+        i = int(np.floor(x[p, 0] / h)) - lo[0]
+        j = int(np.floor(x[p, 1] / h)) - lo[1]
+        k = int(np.floor(x[p, 2] / h)) - lo[2]
+        if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz:
+            hits[i, j, k] = 1
+
+
 @nb.njit(cache=True, inline="always")
-def _voxel_row(a, o, scale, n_min, drop):
-    """A voxel's fixed-point support and whether it enters the delta (support or a valid comparison)."""
+def _voxel_row(a, hit, o, scale, n_fill):
+    """A voxel's fixed-point support, its frame count (a measurement inside, or support >= n_fill) and
+    whether it enters the delta (support, a measurement or a valid comparison)."""
     q = np.int64(np.rint(a * scale))
-    if drop and q <= n_min:
-        q = 0
-    return q, o != 0 or q != 0
+    n = 1 if (hit != 0 or q >= n_fill) else 0
+    return q, n, o != 0 or q != 0 or n != 0
 
 
 @nb.njit(cache=True, parallel=True)
-def _extract(A, F, O, lo, scale, n_min, drop):
-    """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support or O != 0.
-    Two passes over slabs of constant i (count, then fill at each slab's prefix offset)."""
+def _extract(A, hits, F, O, lo, scale, n_fill):
+    """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support, a
+    measurement or O != 0. Two passes over slabs of constant i (count, then fill at each slab's prefix
+    offset)."""
     nx, ny, nz = A.shape
     counts = np.zeros(nx + 1, np.int64)
     for i in nb.prange(nx):
         c = 0
         for j in range(ny):
             for k in range(nz):
-                if _voxel_row(A[i, j, k], O[i, j, k], scale, n_min, drop)[1]:
+                if _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)[2]:
                     c += 1
         counts[i + 1] = c
     for i in range(nx):
@@ -54,11 +67,11 @@ def _extract(A, F, O, lo, scale, n_min, drop):
         for j in range(ny):
             kj = ki | ((j + lo[1] + off) << 21)
             for k in range(nz):
-                a, keep = _voxel_row(A[i, j, k], O[i, j, k], scale, n_min, drop)
+                a, nn, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)
                 if keep:
                     keys[n] = kj | (k + lo[2] + off)
                     out[n, 0] = a
-                    out[n, 1] = 1 if a > n_min else 0
+                    out[n, 1] = nn
                     out[n, 2] = F[i, j, k]
                     out[n, 3] = O[i, j, k]
                     n += 1
@@ -116,7 +129,8 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
 
     Returns
     -------
-    Delta with channels A (fixed point, FIXED_SCALE), N (0/1), F (0/1), O (0/1)
+    Delta with channels A (fixed point, FIXED_SCALE), N (0/1: a measurement of the frame lies in the
+    voxel, or, for psvf, its kernel support there is at least ``n_fill``), F (0/1), O (0/1)
     """
     if p.kernel not in ("psvf", "point"):
         raise PanovoccError(f"unknown kernel {p.kernel!r} (expected psvf or point)")
@@ -128,7 +142,7 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
         A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
-        return _finish(A, depth, T_world_cam, p, lo, shape)
+        return _finish(A, x, depth, T_world_cam, p, lo, shape)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
     er = sr = None
@@ -146,7 +160,7 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
     _check_box(shape)
     A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
-    return _finish(A, depth, T_world_cam, p, lo, shape)
+    return _finish(A, x, depth, T_world_cam, p, lo, shape)
 
 
 def _check_box(shape) -> None:
@@ -155,10 +169,13 @@ def _check_box(shape) -> None:
                             "lower --max-range or raise --voxel-size")
 
 
-def _finish(A, depth, T_world_cam, p: GeometryParams, lo, shape) -> Delta:
-    """Free-space test and extraction of the frame's sparse delta from its dense support grid A."""
+def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape) -> Delta:
+    """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
+    its measurements x ((n, 3) metres, world: the voxels that contain one count in N)."""
     F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
                  p.min_range, p.max_range, p.carve_extent)
-    keys, rows = _extract(A, F, O, lo, float(FIXED_SCALE), np.int64(np.floor(p.n_min * FIXED_SCALE)),
-                           p.drop_below_n_min)
+    hits = np.zeros(A.shape, np.uint8)
+    _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
+    n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
+    keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill)
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})

@@ -1,9 +1,16 @@
-"""From memory to outputs: the signed score, the three-state grid, and a coloured PLY of occupied voxels.
+"""From memory to outputs: the occupancy decision, the three-state grid, and a coloured PLY of occupied voxels.
 
-Signed score ``g = A / max(N, 1) - lambda_f F / max(O, 1)``. A voxel is occupied when it has support
-(N > 0) and either ``g >= tau_s`` (strong) or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f`` (weak
-support not contradicted by free space). An unoccupied voxel is free (0) when some frame carved it
-(F > 0) and unobserved (255) otherwise.
+Two decision rules (``OccupancyParams.rule``; defaults and reasons: docs/mapping.md):
+
+* ``frequency`` (default): occupied iff ``N / max(O, 1) - lambda_n F / max(O, 1) >= nu``: the share of a
+  voxel's valid observations in which a measurement (or strong kernel support) lay in it, less a share
+  of those that saw through it;
+* ``score`` (the paper's): with the signed score ``g = A / max(N, 1) - lambda_f F / max(O, 1)``,
+  occupied iff N > 0 and ``g >= tau_s`` (strong), or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f``
+  (weak support not contradicted by free space).
+
+An unoccupied voxel is free (0) when some frame carved it (F > 0) and unobserved (255) otherwise. The
+score g is exported either way (the semantic consolidation uses it).
 """
 
 from __future__ import annotations
@@ -12,15 +19,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
 from ..io.ply import write_ply
 from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .memory import FIXED_SCALE
 from .params import OccupancyParams
 
+RULES = ("frequency", "score")
+
 
 def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:
-    """``g`` and the free ratio ``F / max(O, 1)`` (float64) from the stored integers (A fixed point)."""
+    """``A / max(N, 1)`` and the free ratio ``F / max(O, 1)`` (float64) from the stored integers (A fixed point)."""
     a = np.asarray(A, np.float64).reshape(-1) / FIXED_SCALE
     n = np.maximum(np.asarray(N, np.float64).reshape(-1), 1.0)
     f = np.asarray(F, np.float64).reshape(-1)
@@ -30,10 +40,17 @@ def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:
 
 def classify(A, N, F, O, p: OccupancyParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Occupied and free masks (bool) and the score g (float64) of voxels given their channels."""
+    if p.rule not in RULES:
+        raise PanovoccError(f"unknown occupancy rule {p.rule!r} (expected frequency or score)")
     support, free_ratio = signed_score(A, N, F, O)
     g = support - p.lambda_f * free_ratio
-    has = np.asarray(N).reshape(-1) > 0
-    occ = has & ((g >= p.tau_s) | ((g >= p.tau_w) & (free_ratio <= p.gamma_f)))
+    n = np.asarray(N).reshape(-1)
+    has = n > 0
+    if p.rule == "score":
+        occ = has & ((g >= p.tau_s) | ((g >= p.tau_w) & (free_ratio <= p.gamma_f)))
+    else:
+        o = np.maximum(np.asarray(O, np.float64).reshape(-1), 1.0)
+        occ = has & (n / o - p.lambda_n * free_ratio >= p.nu)
     free = ~occ & (np.asarray(F).reshape(-1) > 0)
     return occ, free, g
 

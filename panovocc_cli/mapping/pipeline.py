@@ -43,7 +43,8 @@ from .semantic import SemanticParams
 
 CONFIG_NAME = "config.json"
 MEMORY_NAME = "memory.npz"
-FORMAT_VERSION = 2  # 2: semantic section (a version-1 config is a geometry-only map)
+FORMAT_VERSION = 3  # 3: footprint-fitted surfels, N = frames with a measurement in the voxel, occupancy rule
+# (2: semantic section; a version-1 config is a geometry-only map)
 
 
 @dataclass
@@ -326,6 +327,10 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
         raise PanovoccError(f"--voxel-size must be positive, got {g.voxel_size}")
     if g.kernel not in ("psvf", "point"):
         raise PanovoccError(f"--kernel must be psvf or point, got {g.kernel!r}")
+    if cfg.occupancy.rule not in ("frequency", "score"):
+        raise PanovoccError(f"--rule must be frequency or score, got {cfg.occupancy.rule!r}")
+    if g.radial not in ("fit", "model"):
+        raise PanovoccError(f"radial must be fit or model, got {g.radial!r}")
     if cfg.checkpoint_every < 0:
         raise PanovoccError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
     return dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride),

@@ -296,9 +296,158 @@ def lift_kernels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
 # Surfel-aligned kernel (GeometryParams.extent = "surfel")
 # --------------------------------------------------------------------------------------------------
 
+@nb.njit(cache=True, inline="always")
+def _interp1(x, xp, fp):
+    """``np.interp`` of one scalar (xp increasing), without an array allocation per call."""
+    n = len(xp)
+    if x <= xp[0]:
+        return fp[0]
+    if x >= xp[n - 1]:
+        return fp[n - 1]
+    j = 1
+    while xp[j] < x:
+        j += 1
+    t = (x - xp[j - 1]) / (xp[j] - xp[j - 1])
+    return fp[j - 1] + t * (fp[j] - fp[j - 1])
+
+
+@nb.njit(cache=True)
+def _trig_tables(H, W):
+    """sin / cos of every ERP row's latitude and every column's longitude (pixel centres)."""
+    dth = 2.0 * np.pi / W
+    dph = np.pi / H
+    sphi, cphi = np.empty(H), np.empty(H)
+    for vv in range(H):
+        ph = 0.5 * np.pi - (vv + 0.5) * dph
+        sphi[vv], cphi[vv] = np.sin(ph), np.cos(ph)
+    sth, cth = np.empty(W), np.empty(W)
+    for uu in range(W):
+        th = (uu + 0.5) * dth - np.pi
+        sth[uu], cth[uu] = np.sin(th), np.cos(th)
+    return sphi, cphi, sth, cth
+
+
+@nb.njit(cache=True, parallel=True)
+def _raw_residuals(depth, stride, sub, min_range, max_range, sphi, cphi, sth, cth):
+    """Per strided sample (every ``sub``-th of each axis) with valid neighbours (+-stride pixels) on both
+    image axes: range r, the mean over the two axes of the squared distance to the line through the
+    axis' two neighbours divided by 1.5, and |cos incidence| of the plane they span; -1 where a
+    neighbour is missing."""
+    H, W = depth.shape
+    s0 = stride // 2
+    nr = (H - s0 + stride * sub - 1) // (stride * sub)
+    nc = (W - s0 + stride * sub - 1) // (stride * sub)
+    rr = np.full((nr, nc), -1.0)
+    res2 = np.full((nr, nc), -1.0)
+    cinc = np.zeros((nr, nc))
+    for a in nb.prange(nr):
+        v = s0 + a * stride * sub
+        p = np.empty(3)
+        q = np.empty((2, 2, 3))
+        for b in range(nc):
+            u = s0 + b * stride * sub
+            r = np.float64(depth[v, u])
+            if not (r > 0 and r >= min_range and r <= max_range):
+                continue
+            rr[a, b] = r
+            if v - stride < 0 or v + stride >= H:
+                continue
+            p[0], p[1], p[2] = r * cphi[v] * sth[u], -r * sphi[v], r * cphi[v] * cth[u]
+            ok = True
+            for dirn in range(2):
+                for side in range(2):
+                    d = -stride if side == 0 else stride
+                    vq, uq = (v, (u + d) % W) if dirn == 0 else (v + d, u)
+                    rq = np.float64(depth[vq, uq])
+                    if not rq > 0:
+                        ok = False
+                    q[dirn, side, 0] = rq * cphi[vq] * sth[uq]
+                    q[dirn, side, 1] = -rq * sphi[vq]
+                    q[dirn, side, 2] = rq * cphi[vq] * cth[uq]
+            if not ok:
+                continue
+            acc = 0.0
+            for dirn in range(2):
+                l0, l1, l2 = (q[dirn, 1, 0] - q[dirn, 0, 0], q[dirn, 1, 1] - q[dirn, 0, 1],
+                              q[dirn, 1, 2] - q[dirn, 0, 2])
+                e0, e1, e2 = p[0] - q[dirn, 0, 0], p[1] - q[dirn, 0, 1], p[2] - q[dirn, 0, 2]
+                x0, x1, x2 = e1 * l2 - e2 * l1, e2 * l0 - e0 * l2, e0 * l1 - e1 * l0
+                acc += (x0 * x0 + x1 * x1 + x2 * x2) / max(l0 * l0 + l1 * l1 + l2 * l2, 1e-18)
+            res2[a, b] = acc / 3.0  # mean over the 2 axes, / 1.5
+            a0, a1, a2 = q[0, 1, 0] - q[0, 0, 0], q[0, 1, 1] - q[0, 0, 1], q[0, 1, 2] - q[0, 0, 2]
+            b0, b1, b2 = q[1, 1, 0] - q[1, 0, 0], q[1, 1, 1] - q[1, 0, 1], q[1, 1, 2] - q[1, 0, 2]
+            n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+            nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if nn > 0:
+                cinc[a, b] = abs(n0 * p[0] + n1 * p[1] + n2 * p[2]) / (nn * r)
+    return rr, res2, cinc
+
+
+@nb.njit(cache=True, parallel=True)
+def _block_depths(depth, stride, min_range, max_range, fit_r, fit_s, k_res, res_abs, sel_rel):
+    """Each strided sample's depth denoised over its s x s footprint, and the readings used.
+
+    The footprint's valid pixels within ``sel_rel r + 4 sigma`` of the sample pixel's depth r (other
+    objects left out) are fitted by least squares with a plane in pixel offsets, ``r' = c0 + c1 du + c2 dv``
+    (du, dv from the sample pixel); where the fit's residual RMS is within ``k_res sigma + res_abs``
+    (sigma the frame's radial noise at r: ``fit_r``, ``fit_s``) the sample's depth is c0 and its count
+    the pixels fitted; elsewhere (a crease, an edge, fewer than 6 pixels) the raw depth and 1.
+    Depth 0 and count 0 where the sample pixel is invalid. One pass: the residual sum of squares is
+    ``sum e^2 - c . b`` of the normal equations, on depths taken relative to r."""
+    H, W = depth.shape
+    s0 = stride // 2
+    nr = (H - s0 + stride - 1) // stride
+    nc = (W - s0 + stride - 1) // stride
+    rs = np.zeros((nr, nc))
+    cnt = np.zeros((nr, nc), np.int64)
+    for a in nb.prange(nr):
+        v = s0 + a * stride
+        for b in range(nc):
+            u = s0 + b * stride
+            r = np.float64(depth[v, u])
+            if not (r > 0 and r >= min_range and r <= max_range):
+                continue
+            rs[a, b] = r
+            cnt[a, b] = 1
+            sig = _interp1(r, fit_r, fit_s)
+            tol = sel_rel * r + 4.0 * sig
+            s00 = s01 = s02 = s11 = s12 = s22 = b0 = b1 = b2 = ee = 0.0
+            m = 0
+            for vv in range(v - s0, min(v - s0 + stride, H)):
+                dv = np.float64(vv - v)
+                for uu in range(u - s0, min(u - s0 + stride, W)):
+                    e = np.float64(depth[vv, uu]) - r
+                    if depth[vv, uu] > 0 and abs(e) <= tol:
+                        du = np.float64(uu - u)
+                        s00 += 1.0
+                        s01 += du
+                        s02 += dv
+                        s11 += du * du
+                        s12 += du * dv
+                        s22 += dv * dv
+                        b0 += e
+                        b1 += e * du
+                        b2 += e * dv
+                        ee += e * e
+                        m += 1
+            if m < 6:
+                continue
+            det = (s00 * (s11 * s22 - s12 * s12) - s01 * (s01 * s22 - s12 * s02) + s02 * (s01 * s12 - s11 * s02))
+            if abs(det) < 1e-9:
+                continue
+            c0 = (b0 * (s11 * s22 - s12 * s12) - s01 * (b1 * s22 - s12 * b2) + s02 * (b1 * s12 - s11 * b2)) / det
+            c1 = (s00 * (b1 * s22 - s12 * b2) - b0 * (s01 * s22 - s12 * s02) + s02 * (s01 * b2 - b1 * s02)) / det
+            c2 = (s00 * (s11 * b2 - b1 * s12) - s01 * (s01 * b2 - b1 * s02) + b0 * (s01 * s12 - s11 * s02)) / det
+            ss = max(ee - (c0 * b0 + c1 * b1 + c2 * b2), 0.0)
+            if np.sqrt(ss / (m - 3)) <= k_res * sig + res_abs and r + c0 > 0:
+                rs[a, b] = r + c0
+                cnt[a, b] = m
+    return rs, cnt
+
+
 @nb.njit(cache=True, parallel=True)
 def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole, r_half, c_norm, h, kappa,
-                 n_floor, c_min, disc_k, fit, tol_abs):
+                 n_floor, c_min, disc_k, fit, tol_abs, fit_r, fit_s, radial_fit, block, rs, bcnt):
     """Surfel kernels of the strided valid pixels (see :func:`lift_surfels`)."""
     H, W = depth.shape
     dth = 2.0 * np.pi / W
@@ -317,14 +466,8 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
         start[a + 1] = start[a] + c
     n = start[-1]
     # sin / cos of every pixel row's latitude and column's longitude (the neighbours' too)
-    sphi, cphi = np.empty(H), np.empty(H)
-    for vv in range(H):
-        ph = 0.5 * np.pi - (vv + 0.5) * dph
-        sphi[vv], cphi[vv] = np.sin(ph), np.cos(ph)
-    sth, cth = np.empty(W), np.empty(W)
-    for uu in range(W):
-        th = (uu + 0.5) * dth - np.pi
-        sth[uu], cth[uu] = np.sin(th), np.cos(th)
+    sphi, cphi, sth, cth = _trig_tables(H, W)
+    ncols = len(cols)
     x = np.empty((n, 3))
     Pt = np.zeros((n, 3, 3))
     half = np.empty((n, 3))
@@ -349,10 +492,15 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
         t2 = np.zeros(3)
         w1 = np.zeros(3)
         sp, cp = sphi[v], cphi[v]
-        for u in cols:
+        for bi in range(ncols):
+            u = cols[bi]
             r = np.float64(depth[v, u])
             if not (r > 0 and r >= min_range and r <= max_range):
                 continue
+            mself = 1.0
+            if block:  # the footprint-denoised depth
+                mself = np.float64(bcnt[a, bi])
+                r = rs[a, bi]
             st, ct = sth[u], cth[u]
             Ec[0, 0], Ec[1, 0], Ec[2, 0] = ct, 0.0, -st
             Ec[0, 1], Ec[1, 1], Ec[2, 1] = -sp * st, -cp, -sp * ct
@@ -362,16 +510,19 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                     E[i, j] = R[i, 0] * Ec[0, j] + R[i, 1] * Ec[1, j] + R[i, 2] * Ec[2, j]
             s_th = max(r * abs(cp) * dth * stride, SIGMA_MIN)
             s_ph = max(r * dph * stride, SIGMA_MIN)
-            sr = max(alpha * r + beta, SIGMA_MIN)
+            sr_prior = max(alpha * r + beta, SIGMA_MIN)
+            sr = max(_interp1(r, fit_r, fit_s), SIGMA_MIN) if radial_fit else sr_prior
+            pc0, pc1, pc2 = r * Ec[0, 2], r * Ec[1, 2], r * Ec[2, 2]
             for i in range(3):
-                x[m, i] = r * E[i, 2] + t[i]
+                x[m, i] = R[i, 0] * pc0 + R[i, 1] * pc1 + R[i, 2] * pc2 + t[i]
             w[m] = c_norm * (1.0 - (1.0 - w_pole) * sp * sp) / (1.0 + r / r_half)
             # ---- local surface normal from the neighbouring samples (camera frame) ----
             # per image direction: the central difference where the depth is smooth (second difference
             # within tol), else the one-sided difference to the valid neighbour nearer in depth
-            tol = disc_k * sr + tol_abs
-            pc0, pc1, pc2 = r * Ec[0, 2], r * Ec[1, 2], r * Ec[2, 2]
+            tol = disc_k * sr_prior + tol_abs
             nused = 0
+            msum = mself
+            nfit = mself  # depth readings averaged in the surfel's position
             ok = True
             for dirn in range(2):
                 vv0, uu0, vv1, uu1 = v, (u - k) % W, v, (u + k) % W  # longitude: left, right
@@ -381,6 +532,19 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                 r1 = depth[vv1, uu1] if 0 <= vv1 < H else np.float32(0.0)
                 use0 = r0 > 0
                 use1 = r1 > 0
+                # block neighbours: the samples a row / column of samples away
+                ai = np.int64(a)
+                ba0, bb0, ba1, bb1 = ai, (bi - 1) % ncols, ai, (bi + 1) % ncols
+                if dirn == 1:
+                    ba0, bb0, ba1, bb1 = ai - 1, bi, ai + 1, bi
+                m0 = m1 = 1.0
+                if block:
+                    m0 = np.float64(bcnt[ba0, bb0]) if 0 <= ba0 < len(rows) else 0.0
+                    m1 = np.float64(bcnt[ba1, bb1]) if 0 <= ba1 < len(rows) else 0.0
+                    r0 = rs[ba0, bb0] if m0 > 0 else 0.0
+                    r1 = rs[ba1, bb1] if m1 > 0 else 0.0
+                    use0 = r0 > 0
+                    use1 = r1 > 0
                 if not (use0 or use1):
                     ok = False
                     break
@@ -392,6 +556,7 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                         pq0 = rq * cphi[vq] * sth[uq]
                         pq1 = -rq * sphi[vq]
                         pq2 = rq * cphi[vq] * cth[uq]
+                        msum += m0 if side == 0 else m1
                         if side == 0:
                             q0[0], q0[1], q0[2] = pq0, pq1, pq2
                         else:
@@ -427,7 +592,7 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                         off /= nused + 1.0
                         for i in range(3):
                             x[m, i] += off * nrm[i]
-                        nfit = nused + 1.0
+                        nfit = msum
             if ok:
                 d0, d1, d2 = E[0, 2], E[1, 2], E[2, 2]
                 cosi = nrm[0] * d0 + nrm[1] * d1 + nrm[2] * d2
@@ -458,7 +623,7 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                 q22 = vt * g2t * g2t + vp * g2p * g2p
                 det = q11 * q22 - q12 * q12
                 i11, i12, i22 = q22 / det, -q12 / det, q11 / det
-                sn = (sr * c / np.sqrt(nfit) if fit else sr * c) + n_floor
+                sn = sr * c / np.sqrt(nfit) + n_floor
                 b = 0.5 * h * (abs(nrm[0]) + abs(nrm[1]) + abs(nrm[2]))
                 for i in range(3):
                     ax[m, i] = nrm[i]
@@ -488,22 +653,31 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
 def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha: float, beta: float,
                  min_range: float, max_range: float, w_pole: float, r_half: float, c_norm: float,
                  voxel_size: float, kappa: float, n_floor: float, c_min: float, disc_k: float,
-                 fit: bool = True, tol_abs: float = 0.0):
+                 fit: bool = True, tol_abs: float = 0.0, radial_fit: bool = False, block: bool = False,
+                 block_k: float = 2.0, block_abs: float = 0.0005, block_sel: float = 0.05):
     """Surfel-aligned kernels of the strided valid pixels (``GeometryParams.extent = "surfel"``).
 
     The local surface normal n of each sample comes from its neighbouring samples (+-stride pixels,
     longitude wraps): per image axis the central difference, or the one-sided difference where one
-    neighbour is invalid or outside the image. The kernel is a Gaussian within the surface plane whose covariance is the ERP
-    pixel footprint (``r |cos phi| dtheta``, ``r dphi``, dtheta, dphi at the stride) projected along the
-    ray onto the plane (stretched by ``1 / max(|cos i|, c_min)`` along the ray's in-plane direction,
-    i = incidence), times the probability that the plane, displaced along n with scale
-    ``s_n = (alpha r + beta) |cos i| + n_floor``, passes through the voxel's box (half-support
-    ``b = (h / 2) |n|_1`` along n). A sample farther than ``disc_k (alpha r + beta) + tol_abs`` from the
-    line through its two neighbours (per image axis) marks a depth edge or a corner; there, and where both neighbours of an axis are invalid, the sample keeps the
-    ray-aligned ``box`` kernel (axis = ray, b = the voxel's chord half-length). With ``fit`` (default)
-    the surfel is centred on the plane through the centroid of the sample and the m - 1 neighbours used
-    (the sample moved along n by the centroid's offset; m = 5 on smooth surfaces) and ``s_n`` uses
-    ``(alpha r + beta) |cos i| / sqrt(m)``: the plane's offset averages m depth measurements.
+    neighbour is invalid or outside the image. The kernel is a Gaussian within the surface plane whose
+    covariance is the ERP pixel footprint (``r |cos phi| dtheta``, ``r dphi``, dtheta, dphi at the
+    stride) projected along the ray onto the plane (stretched by ``1 / max(|cos i|, c_min)`` along the
+    ray's in-plane direction, i = incidence), times the probability that the plane, displaced along n
+    with scale ``s_n = sigma_r |cos i| / sqrt(m) + n_floor``, passes through the voxel's box
+    (half-support ``b = (h / 2) |n|_1`` along n); ``sigma_r`` is the radial depth noise at the sample's
+    range: ``alpha r + beta``, or with ``radial_fit`` the noise fitted to this frame's own depth
+    (:func:`radial_noise_fit`). A sample farther than ``disc_k (alpha r + beta) + tol_abs`` from the
+    line through its two neighbours (per image axis) marks a depth edge or a corner; there, and where
+    both neighbours of an axis are invalid, the sample keeps the ray-aligned ``box`` kernel (axis = ray,
+    b = the voxel's chord half-length, scale sigma_r).
+
+    With ``block`` each sample stands for its whole s x s footprint: its depth is the value at the
+    sample pixel of a plane fitted by least squares to the footprint's pixels on its surface
+    (:func:`_block_depths`; accepted where the fit's residual is within ``block_k sigma_r + block_abs``,
+    else the raw depth), normals come from the neighbours' fitted depths, and ``m`` is the number of
+    pixels fitted: the surfel's offset averages ~s^2 readings instead of one. With ``fit`` the surfel
+    is also centred on the plane through the sample and the neighbours used (moved along n by their
+    centroid's offset; m counts every reading in that fit). Defaults: block on, fit off.
 
     Parameters
     ----------
@@ -516,19 +690,131 @@ def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
     on each world axis; w : (n,) float64; axis : (n, 3) float64 unit (normal or ray), world;
     s_axis : (n,) float64 metres; b : (n,) float64 metres; surfel : (n,) uint8, 1 where the normal was used
     """
+    depth = np.ascontiguousarray(depth, dtype=np.float32)
     R = np.ascontiguousarray(T_world_cam[:3, :3], dtype=np.float64)
     t = np.ascontiguousarray(T_world_cam[:3, 3], dtype=np.float64)
-    return _lift_surfel(np.ascontiguousarray(depth, dtype=np.float32), int(stride), R, t, float(alpha),
-                        float(beta), float(min_range), float(max_range), float(w_pole), float(r_half),
-                        float(c_norm), float(voxel_size), float(kappa), float(n_floor), float(c_min),
-                        float(disc_k), bool(fit), float(tol_abs))
+    H, W = depth.shape
+    tables = _trig_tables(H, W)
+    fit_r, fit_s = np.zeros(1), np.full(1, SIGMA_FLOOR)
+    if radial_fit or block:
+        if radial_fit:
+            rr, res2, cinc = _raw_residuals(depth, int(stride), FIT_SUB, float(min_range), float(max_range), *tables)
+            fit_r, fit_s = radial_noise_fit(rr.ravel(), res2.ravel(), cinc.ravel(), min_range, max_range)
+        else:  # the block tolerance from the noise model alpha r + beta
+            fit_r = np.array([0.0, max_range])
+            fit_s = np.array([beta, alpha * max_range + beta])
+    if block:
+        rs, bcnt = _block_depths(depth, int(stride), float(min_range), float(max_range), fit_r, fit_s,
+                                 float(block_k), float(block_abs), float(block_sel))
+    else:
+        rs, bcnt = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
+    return _lift_surfel(depth, int(stride), R, t, float(alpha), float(beta), float(min_range), float(max_range),
+                        float(w_pole), float(r_half), float(c_norm), float(voxel_size), float(kappa),
+                        float(n_floor), float(c_min), float(disc_k), bool(fit), float(tol_abs), fit_r, fit_s,
+                        bool(radial_fit), bool(block), rs, bcnt)
+
+
+SIGMA_FLOOR = 3e-4  # metres; floor of a fitted radial noise (the millimetre depth PNG's quantisation)
+FIT_BIN = 0.5  # metres; range bins of the radial noise fit
+FIT_MIN_SAMPLES = 50  # a range bin needs this many smooth samples to be fitted
+FIT_SUB = 2  # the fit uses every FIT_SUB-th strided sample of each image axis
+FIT_QUANTILE = 0.25  # robust scale: this quantile of the normalised squared residuals ...
+FIT_Q_EXP = -np.log(1.0 - FIT_QUANTILE)  # ... over the same quantile of chi^2_2 / 2 (an Exp(1))
+
+
+@nb.njit(cache=True)
+def _binned_quantiles(r, res2, cinc, c_min, edges, q, min_count):
+    """Per range bin [edges[i], edges[i + 1]) with at least ``min_count`` samples (res2 >= 0, cinc >=
+    c_min): the bin centre, the q-quantile (lower) of ``res2 / cinc^2`` and the count."""
+    nb_ = len(edges) - 1
+    counts = np.zeros(nb_, np.int64)
+    idx = np.full(len(r), -1, np.int64)
+    for i in range(len(r)):
+        if res2[i] >= 0 and cinc[i] >= c_min and edges[0] <= r[i] < edges[nb_]:
+            k = min(int((r[i] - edges[0]) / (edges[1] - edges[0])), nb_ - 1)
+            idx[i] = k
+            counts[k] += 1
+    start = np.zeros(nb_ + 1, np.int64)
+    for k in range(nb_):
+        start[k + 1] = start[k] + counts[k]
+    vals = np.empty(start[nb_])
+    fill = start[:-1].copy()
+    for i in range(len(r)):
+        k = idx[i]
+        if k >= 0:
+            vals[fill[k]] = res2[i] / (cinc[i] * cinc[i])
+            fill[k] += 1
+    m = 0
+    for k in range(nb_):
+        if counts[k] >= min_count:
+            m += 1
+    centres = np.empty(m)
+    qs = np.empty(m)
+    cn = np.empty(m, np.int64)
+    j = 0
+    for k in range(nb_):
+        if counts[k] >= min_count:
+            seg = np.sort(vals[start[k]:start[k + 1]])
+            centres[j] = 0.5 * (edges[k] + edges[k + 1])
+            qs[j] = seg[int(q * (counts[k] - 1))]
+            cn[j] = counts[k]
+            j += 1
+    return centres, qs, cn
+
+
+def _isotonic(y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least-squares non-decreasing fit of y (pool adjacent violators)."""
+    vals, wts, lens = [], [], []
+    for yi, wi in zip(y, w):
+        vals.append(float(yi))
+        wts.append(float(wi))
+        lens.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            v2, w2, l2 = vals.pop(), wts.pop(), lens.pop()
+            vals[-1] = (vals[-1] * wts[-1] + v2 * w2) / (wts[-1] + w2)
+            wts[-1] += w2
+            lens[-1] += l2
+    return np.repeat(vals, lens)
+
+
+def radial_noise_fit(r: np.ndarray, res2: np.ndarray, cinc: np.ndarray, min_range: float,
+                     max_range: float, c_min: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Radial depth noise as a function of range, fitted to one frame's own depth.
+
+    On a smooth surface a sample's distance to the line through its two neighbours is
+    ``(e_0 - (e_- + e_+) / 2) cos i`` for radial errors ``e`` along nearly parallel rays, of variance
+    ``1.5 sigma_r^2 cos^2 i`` (``res2`` arrives divided by 1.5 and averaged over the two image axes, so
+    ``res2 / (sigma_r^2 cos^2 i)`` is chi^2_2 / 2, an Exp(1)). Per range bin of ``FIT_BIN`` metres with
+    at least ``FIT_MIN_SAMPLES`` samples (|cos i| >= c_min), ``sigma_r^2`` is the ``FIT_QUANTILE``
+    quantile of ``res2 / cos^2 i`` over the same quantile of Exp(1): a low quantile, because depth
+    edges, creases and curvature only ever add residual. The bins' values are then made
+    non-decreasing in range (weighted by their sample counts; sensor noise grows with range) and
+    floored at ``SIGMA_FLOOR``.
+
+    Parameters
+    ----------
+    r : (n,) float64 metres; res2 : (n,) float64 m^2, squared residual (< 0 = none); cinc : (n,) float64
+
+    Returns
+    -------
+    ranges : (k,) float64 metres, bin centres; sigma : (k,) float64 metres (k >= 1; use ``np.interp``)
+    """
+    edges = np.arange(min_range, max_range + FIT_BIN, FIT_BIN)
+    centres, var, counts = _binned_quantiles(np.ascontiguousarray(r, np.float64), np.ascontiguousarray(res2, np.float64),
+                                             np.ascontiguousarray(cinc, np.float64), float(c_min), edges,
+                                             FIT_QUANTILE, FIT_MIN_SAMPLES)
+    centres, var, counts = list(centres), list(var / FIT_Q_EXP), list(counts)
+    if not centres:
+        return np.zeros(1), np.full(1, SIGMA_FLOOR)
+    sig = np.maximum(np.sqrt(_isotonic(np.array(var), np.array(counts))), SIGMA_FLOOR)
+    return np.array(centres), sig
 
 
 def surfels_for(depth: np.ndarray, T_world_cam: np.ndarray, p, c_norm: float):
     """:func:`lift_surfels` with the parameters of a :class:`~.params.GeometryParams` ``p``."""
     return lift_surfels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range, p.w_pole,
                         p.r_half, c_norm, p.voxel_size, p.kappa, p.n_floor, p.c_min, p.disc_k, p.surfel_fit,
-                        p.edge_abs)
+                        p.edge_abs, p.radial == "fit", p.block, p.block_k, p.block_abs, p.block_sel)
 
 
 @nb.njit(cache=True, parallel=True)
