@@ -132,6 +132,12 @@ def test_cli_map_revise_and_bad_input(room_seq, tmp_path, capsys):
     assert code == 2 and "2 poses" in io.err and not (tmp_path / "o3").exists()
     code, io = run("map", str(room_seq), str(tmp_path / "o4"), "--kernel", "cube", "--quiet", *geo)
     assert code == 2 and not (tmp_path / "o4").exists()
+    code, io = run("map", str(room_seq), str(tmp_path / "o5"), "--rule", "majority", "--quiet", *geo)
+    assert code == 2 and "--rule" in io.err and len(io.err.strip().splitlines()) == 1
+    assert not (tmp_path / "o5").exists()
+    code, io = run("map", str(room_seq), str(tmp_path / "o6"), "--rule", "score", "--quiet", "--checkpoint-every", "0",
+                   *geo)
+    assert code == 0 and '"rule": "score"' in (tmp_path / "o6" / "config.json").read_text()
     code, io = run("revise", str(tmp_path / "o"), str(room_seq / "poses.txt"), "--quiet")
     assert code == 0 and "revised 0 of 5" in io.out
     code, io = run("map", "--resume", str(tmp_path / "o"), "--quiet")
