@@ -469,7 +469,7 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
     sphi, cphi, sth, cth = _trig_tables(H, W)
     ncols = len(cols)
     x = np.empty((n, 3))
-    Pt = np.zeros((n, 3, 3))
+    Pt = np.empty((n, 3, 3))  # every entry is written below
     half = np.empty((n, 3))
     w = np.empty(n)
     ax = np.empty((n, 3))
