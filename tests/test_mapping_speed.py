@@ -137,3 +137,33 @@ def test_bench_end_to_end(tmp_path):
     assert saved["panovocc_end_to_end_ms_per_frame"] > 0
     with pytest.raises(PanovoccError):
         run_bench(BenchConfig(out=str(tmp_path), frames=1, width=128))
+
+
+def test_process_settings_for_the_shared_cores():
+    """Importing the package makes OpenMP workers sleep at barriers (unless the user chose), and the
+    mapper keeps freed heap in the process on glibc; the radial fit's selection equals a sort."""
+    import os
+    import subprocess
+    import sys
+
+    from panovocc_cli.mapping import contributors, psvf
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    code = "import os, panovocc_cli; print(os.environ['OMP_WAIT_POLICY'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "passive"
+    env["OMP_WAIT_POLICY"] = "active"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "active"
+    if sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION"):
+        assert contributors.keep_freed_heap()
+    rng = np.random.default_rng(0)
+    r = rng.uniform(0.2, 5.0, 4000)
+    res2 = rng.exponential(1e-6, 4000)
+    cinc = rng.uniform(0.3, 1.0, 4000)
+    edges = np.arange(0.1, 12.5, 0.5)
+    centres, qs, counts = psvf._binned_quantiles(r, res2, cinc, 0.3, edges, 0.25, 50)
+    for c, q, n in zip(centres, qs, counts):
+        sel = (r >= c - 0.25) & (r < c + 0.25)
+        v = np.sort(res2[sel] / cinc[sel] ** 2)
+        assert len(v) == n and q == v[int(0.25 * (n - 1))]
