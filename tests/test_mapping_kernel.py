@@ -1,6 +1,7 @@
 """PSVF kernel shape (equator vs pole) and free-space carving in a closed-form box room."""
 
 import numpy as np
+from box_room import HI, LO, box_depth
 
 from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
@@ -10,18 +11,6 @@ from panovocc_cli.mapping.freespace import carve
 from panovocc_cli.mapping.memory import FIXED_SCALE
 from panovocc_cli.mapping.psvf import (kernel_inverse_cov, kernel_params, lift_kernels, lift_surfels,
                                      measurement_weight, splat, splat_axis)
-
-LO, HI = np.array([-2.0, -1.5, -1.2]), np.array([2.0, 1.5, 1.6])  # box room around a camera at the origin
-
-
-def box_depth(W, T=np.eye(4)):
-    """Radial depth of the box room's walls, closed form (ray-plane distances)."""
-    d = ray_directions(W) @ T[:3, :3].T
-    o = T[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(d > 0, (HI - o) / d, (LO - o) / d)
-    t = np.where(np.isfinite(t) & (t > 0), t, np.inf)
-    return t.min(axis=-1).astype(np.float32)
 
 
 def test_fast_lift_matches_numpy_reference():

@@ -1,10 +1,10 @@
 """What makes PSVF more accurate than point binning: the per-frame radial noise fit, the footprint
 plane-fit depths, the frequency occupancy rule, and the end result on a noisy box room."""
 
+import box_room
 import numpy as np
 import pytest
 
-from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
 from panovocc_cli.mapping import psvf
 from panovocc_cli.mapping.contributors import geometry_delta
@@ -18,13 +18,8 @@ H_VOX = 0.08
 
 
 def box_depth(W, T=np.eye(4)):
-    """Radial depth of the box room's walls seen from pose T, closed form (ray-plane distances)."""
-    d = ray_directions(W) @ T[:3, :3].T
-    o = T[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(d > 0, (HI - o) / d, (LO - o) / d)
-    t = np.where(np.isfinite(t) & (t > 0), t, np.inf)
-    return t.min(axis=-1).astype(np.float32)
+    """Radial depth of this module's box room seen from pose T."""
+    return box_room.box_depth(W, T, LO, HI)
 
 
 def sensor_sigma(r):

@@ -15,7 +15,7 @@ from ..errors import PanovoccError
 from .freespace import carve
 from .memory import FIXED_SCALE, Delta
 from .params import GeometryParams
-from .psvf import lift_kernels, splat, splat_axis, surfels_for
+from .psvf import lift_kernels, local_voxel, splat, splat_axis, surfels_for
 
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
 
@@ -47,12 +47,9 @@ keep_freed_heap()
 @nb.njit(cache=True)
 def _mark_hits(x, h, lo, hits):
     """Set ``hits`` (uint8 frame grid) to 1 in the voxels that contain a measurement x (metres, world)."""
-    nx, ny, nz = hits.shape
     for p in range(x.shape[0]):
-        i = int(np.floor(x[p, 0] / h)) - lo[0]
-        j = int(np.floor(x[p, 1] / h)) - lo[1]
-        k = int(np.floor(x[p, 2] / h)) - lo[2]
-        if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz:
+        i, j, k, inside = local_voxel(x, p, h, lo, hits.shape)
+        if inside:
             hits[i, j, k] = 1
 
 

@@ -181,15 +181,22 @@ def _splat_box(x, P, half, w, er, sr, kappa, h, lo, grids):
                             g[i, j, k] += wp * np.exp(-0.5 * dt2) * 0.5 * (math.erf((b - dr) * inv2s) + math.erf((b + dr) * inv2s))
 
 
+@nb.njit(cache=True, inline="always")
+def local_voxel(x, p, h, lo, shape):
+    """Grid-local index (i, j, k) of the voxel holding point p of x (metres), and whether it lies in the
+    frame grid of ``shape`` starting at lattice index ``lo``."""
+    i = int(np.floor(x[p, 0] / h)) - lo[0]
+    j = int(np.floor(x[p, 1] / h)) - lo[1]
+    k = int(np.floor(x[p, 2] / h)) - lo[2]
+    return i, j, k, 0 <= i < shape[0] and 0 <= j < shape[1] and 0 <= k < shape[2]
+
+
 @nb.njit(cache=True)
 def _splat_point(x, w, h, lo, grid):
     """Add each point's weight to the voxel that contains it."""
-    nx, ny, nz = grid.shape
     for p in range(x.shape[0]):
-        i = int(np.floor(x[p, 0] / h)) - lo[0]
-        j = int(np.floor(x[p, 1] / h)) - lo[1]
-        k = int(np.floor(x[p, 2] / h)) - lo[2]
-        if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz:
+        i, j, k, inside = local_voxel(x, p, h, lo, grid.shape)
+        if inside:
             grid[i, j, k] += w[p]
 
 
