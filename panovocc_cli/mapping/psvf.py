@@ -455,8 +455,9 @@ def _block_depths(depth, stride, min_range, max_range, fit_r, fit_s, k_res, res_
 
 @nb.njit(cache=True, parallel=True)
 def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole, r_half, c_norm, h, kappa,
-                 n_floor, c_min, disc_k, fit, tol_abs, fit_r, fit_s, radial_fit, block, rs, bcnt):
-    """Surfel kernels of the strided valid pixels (see :func:`lift_surfels`)."""
+                 n_floor, c_min, disc_k, fit, tol_abs, fit_r, fit_s, radial_fit, block, rs, bcnt, sphi, cphi, sth, cth):
+    """Surfel kernels of the strided valid pixels (see :func:`lift_surfels`); sphi .. cth from
+    :func:`_trig_tables`."""
     H, W = depth.shape
     dth = 2.0 * np.pi / W
     dph = np.pi / H
@@ -473,8 +474,6 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
                 c += 1
         start[a + 1] = start[a] + c
     n = start[-1]
-    # sin / cos of every pixel row's latitude and column's longitude (the neighbours' too)
-    sphi, cphi, sth, cth = _trig_tables(H, W)
     ncols = len(cols)
     x = np.empty((n, 3))
     Pt = np.empty((n, 3, 3))  # every entry is written below
@@ -490,7 +489,6 @@ def _lift_surfel(depth, stride, R, t, alpha, beta, min_range, max_range, w_pole,
         m = start[a]
         Ec = np.empty((3, 3))
         E = np.empty((3, 3))
-        nfit = 1.0
         nrm = np.zeros(3)
         used = np.zeros((4, 3))
         tang = np.zeros((2, 3))
@@ -719,7 +717,7 @@ def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
     return _lift_surfel(depth, int(stride), R, t, float(alpha), float(beta), float(min_range), float(max_range),
                         float(w_pole), float(r_half), float(c_norm), float(voxel_size), float(kappa),
                         float(n_floor), float(c_min), float(disc_k), bool(fit), float(tol_abs), fit_r, fit_s,
-                        bool(radial_fit), bool(block), rs, bcnt)
+                        bool(radial_fit), bool(block), rs, bcnt, *tables)
 
 
 SIGMA_FLOOR = 3e-4  # metres; floor of a fitted radial noise (the millimetre depth PNG's quantisation)
