@@ -171,55 +171,12 @@ BLOCK = 8  # hierarchical test: voxels per block edge
 TILE = 8  # pixels per tile edge of the min/max depth-threshold maps
 
 
-@nb.njit(cache=True, parallel=True)
 def _pixel_thresholds(depth, Rt, h, eps_abs, eps_rel, stable_k, extent):
-    """Per pixel: ``fthr`` (a voxel at range r projecting here is carved iff r < fthr, and with
-    ``extent`` also r < ro - eps) and ``othr = ro + eps`` (compared iff r <= othr); -inf = never."""
-    H, W = depth.shape
-    dth = 2.0 * np.pi / W
-    dph = np.pi / H
-    fthr = np.empty((H, W))
-    othr = np.empty((H, W))
-    stc = np.empty(W)
-    ctc = np.empty(W)
-    for col in range(W):
-        th_c = (col + 0.5) * dth - np.pi
-        stc[col], ctc[col] = np.sin(th_c), np.cos(th_c)
-    for row in nb.prange(H):
-        phi_c = 0.5 * np.pi - (row + 0.5) * dph
-        sp, cp = np.sin(phi_c), np.cos(phi_c)
-        cphi = max(cp, 1e-3)
-        for col in range(W):
-            ro = depth[row, col]
-            fthr[row, col] = -np.inf
-            if ro <= 0.0:
-                othr[row, col] = -np.inf
-                continue
-            eps = eps_abs + eps_rel * ro
-            othr[row, col] = ro + eps
-            tol = stable_k * eps
-            ok = True
-            cl = col - 1 if col > 0 else W - 1
-            cr = col + 1 if col < W - 1 else 0
-            rn = (depth[row, cl], depth[row, cr], depth[max(row - 1, 0), col], depth[min(row + 1, H - 1), col])
-            for q in rn:
-                if q <= 0.0 or abs(q - ro) > tol:
-                    ok = False
-            if not ok:
-                continue
-            if not extent:
-                fthr[row, col] = ro - eps
-                continue
-            a = (rn[1] - rn[0]) / (2.0 * ro * dth * cphi)
-            b = (rn[2] - rn[3]) / (2.0 * ro * dph)
-            st, ct = stc[col], ctc[col]
-            nxc = cp * st - a * ct + b * sp * st
-            nyc = -sp + b * cp
-            nzc = cp * ct + a * st + b * sp * ct
-            l1 = (abs(Rt[0, 0] * nxc + Rt[1, 0] * nyc + Rt[2, 0] * nzc)
-                  + abs(Rt[0, 1] * nxc + Rt[1, 1] * nyc + Rt[2, 1] * nzc)
-                  + abs(Rt[0, 2] * nxc + Rt[1, 2] * nyc + Rt[2, 2] * nzc))
-            fthr[row, col] = ro - eps - 0.5 * h * l1
+    """Per pixel: ``fthr`` (:func:`_free_thresholds`: a voxel at range r projecting here is carved iff
+    r < fthr, and r < ro - eps) and ``othr = ro + eps`` (compared iff r <= othr); -inf = never."""
+    fthr = _free_thresholds(depth, Rt, h, eps_abs, eps_rel, stable_k, extent)
+    ro = depth.astype(np.float64)
+    othr = np.where(depth > 0, ro + (eps_abs + eps_rel * ro), -np.inf)
     return fthr, othr
 
 
