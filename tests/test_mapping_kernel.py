@@ -1,7 +1,7 @@
 """PSVF kernel shape (equator vs pole) and free-space carving in a closed-form box room."""
 
 import numpy as np
-from box_room import HI, LO, box_depth
+from box_room import HI, LO, box_depth, turned_pose
 
 from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
@@ -227,10 +227,7 @@ def test_hierarchical_carving_equals_exhaustive():
     """Block-wise bulk carving / skipping gives exactly the per-voxel test's F and O (box room with depth
     noise and invalid pixels, a rotated and shifted pose, both carving variants)."""
     W, h = 256, 0.08
-    T = np.eye(4)
-    c, s = np.cos(0.3), np.sin(0.3)
-    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-    T[:3, 3] = [0.3, -0.2, 0.1]
+    T = turned_pose()
     rng = np.random.default_rng(0)
     depth = box_depth(W, T)
     depth = (depth + rng.normal(0, 0.01, depth.shape)).astype(np.float32)

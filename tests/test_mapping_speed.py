@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 import pytest
-from box_room import HI, LO, box_depth
+from box_room import HI, LO, box_depth, turned_pose
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.mapping.bench import BenchConfig, run_bench
@@ -71,10 +71,7 @@ def test_carve_equals_numpy_reference_on_a_noisy_box_room(extent):
     """Same F and O bits as the reference on a box room (256 x 128) with depth noise and dropouts seen
     from a rotated, shifted camera; interior voxels far from the walls are carved, voxels outside are not."""
     W, h = 256, 0.08
-    T = np.eye(4)
-    c, s = np.cos(0.3), np.sin(0.3)
-    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-    T[:3, 3] = [0.3, -0.2, 0.1]
+    T = turned_pose()
     rng = np.random.default_rng(0)
     depth = (box_depth(W, T).astype(np.float64) + rng.normal(0, 0.01, (W // 2, W))).astype(np.float32)
     depth[rng.random(depth.shape) < 0.01] = 0.0
