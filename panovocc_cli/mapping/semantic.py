@@ -154,25 +154,34 @@ def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
                         "count": np.asarray(channels["count"], np.int64)})
 
 
-def semantic_frame(frame, segmenter, vocab: Seq[str], voxel_size: float, weights: EvidenceWeights,
-                   min_range: float, max_range: float, rays: np.ndarray | None = None) -> Delta:
-    """One frame's quantised semantic delta.
+def semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray, T_world_cam: np.ndarray,
+                   voxel_size: float, weights: EvidenceWeights, min_range: float, max_range: float,
+                   rays: np.ndarray | None = None) -> Delta:
+    """One frame's quantised semantic delta from its depth, colours and segmenter logits (no I/O).
 
     Depths outside ``[min_range, max_range]`` (metres) are ignored, as in the geometry contributor.
+    """
+    from ..semantics.evidence import frame_semantic_delta
+
+    depth = np.where((depth >= min_range) & (depth <= max_range), depth, 0.0).astype(np.float32)
+    keys, ch = frame_semantic_delta(depth, rgb, logits, T_world_cam, voxel_size, weights, rays)
+    return quantize_semantic_delta(keys, ch)
+
+
+def semantic_frame(frame, segmenter, vocab: Seq[str], voxel_size: float, weights: EvidenceWeights,
+                   min_range: float, max_range: float, rays: np.ndarray | None = None) -> Delta:
+    """One frame's quantised semantic delta: the segmenter's logits, then :func:`semantic_delta`.
+
     The segmenter sees the frame's ground-truth labels and the sequence's class names (the simulated
     segmenter needs them; real ones ignore them).
     """
-    from ..semantics.evidence import frame_semantic_delta
     from ..semantics.segmenter import FrameContext
 
     seq = frame.seq
     rgb = frame.rgb
-    depth = frame.depth
-    depth = np.where((depth >= min_range) & (depth <= max_range), depth, 0.0).astype(np.float32)
     ctx = FrameContext(seq.labels(frame.index), seq.meta.class_names)
     logits = segmenter.logits(rgb, list(vocab), frame.index, ctx)
-    keys, ch = frame_semantic_delta(depth, rgb, logits, frame.T_world_cam, voxel_size, weights, rays)
-    return quantize_semantic_delta(keys, ch)
+    return semantic_delta(frame.depth, rgb, logits, frame.T_world_cam, voxel_size, weights, min_range, max_range, rays)
 
 
 def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params: SemanticParams) -> np.ndarray:
