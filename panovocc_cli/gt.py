@@ -19,7 +19,7 @@ from numba import njit
 from .config import DEFAULT_VOXEL_SIZE
 from .errors import PanovoccError
 from .geometry.lattice import bounds_to_grid, index_to_center
-from .io.grid import OCCUPIED_UNKNOWN_CLASS, Grid
+from .grid import OCCUPIED_UNKNOWN_CLASS, Grid
 
 BOUNDARY_EPS = 1e-5  # voxel units: a vertex this close below a voxel face counts as on it (float32 PLYs)
 MIN_AREA = 1e-10  # voxel units^2: pieces smaller than this (edges, corners touching a voxel) are dropped

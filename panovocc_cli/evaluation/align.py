@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PanovoccError
-from ..io.grid import Grid
+from ..grid import Grid
 
 VOXEL_SIZE_RTOL = 1e-6  # relative tolerance for "the same voxel size"
 

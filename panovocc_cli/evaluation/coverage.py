@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from ..geometry.erp import ray_directions
-from ..io.grid import EMPTY, UNKNOWN, Grid
+from ..grid import EMPTY, UNKNOWN, Grid
 
 REPLICA_ASPECT = 1200.0 / 680.0  # NICE-SLAM Replica camera, fx = fy = 600: 90 x 59.0 degrees
 DEFAULT_TOL_M = 0.01

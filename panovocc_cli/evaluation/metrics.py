@@ -28,7 +28,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..classes import EMPTY, UNLABELED, canonical_name, parse_class_set
-from ..io.grid import UNKNOWN, Grid
+from ..grid import UNKNOWN, Grid
 from .align import overlap
 
 MASKS: tuple[str, ...] = ("freeocc", "observed")

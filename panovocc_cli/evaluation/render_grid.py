@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..classes import canonical_name, class_color
-from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 
 NO_CLASS_COLOR = (150, 150, 150)
 BACKGROUND = (255, 255, 255)

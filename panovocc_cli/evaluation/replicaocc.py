@@ -42,7 +42,7 @@ from ..classes import EMPTY, canonical_name
 from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center
 from ..io.atomic import atomic_path
-from ..io.grid import MAX_CLASSES, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..grid import MAX_CLASSES, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 
 FREE_NAMES = ("empty", "free", "unlabeled", "unlabelled")
 DEFAULT_SNAP_TOL = 0.25  # fraction of a voxel a centre may be off the lattice

@@ -16,7 +16,7 @@ import numpy as np
 from ..classes import DEFAULT_VOCAB, canonical_name, class_color
 from ..errors import PanovoccError
 from ..io.atomic import atomic_path
-from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .align import check_same_voxel_size
 from .render_grid import NO_CLASS_COLOR, drawing_box, render_voxels
 

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
 from ..io.ply import write_ply
-from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .memory import FIXED_SCALE
 from .params import OccupancyParams
 

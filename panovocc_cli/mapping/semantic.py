@@ -38,7 +38,7 @@ import numpy as np
 
 from ..config import DEFAULT_SEED
 from ..errors import PanovoccError
-from ..io.grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.evidence import EvidenceWeights
 from ..semantics.gsc import GSCParams
 from .memory import ChannelSpec, Delta, quantize

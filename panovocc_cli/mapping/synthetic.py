@@ -99,7 +99,7 @@ def room_ground_truth(voxel_size: float = 0.08, samples_per_m2: float = 4000.0, 
     other voxels whose centres are inside the room and outside the furniture are free (0), the rest
     unknown (255). Surfaces are sampled densely (``samples_per_m2`` points a square metre)."""
     from ..geometry.lattice import bounds_to_grid, point_to_index
-    from ..io.grid import Grid
+    from ..grid import Grid
 
     mesh = room_mesh(True)
     area = mesh.get_surface_area()

@@ -9,7 +9,7 @@ from panovocc_cli.errors import PanovoccError
 from panovocc_cli.evaluation.coverage import CoverageTracker, frame_schedule, perspective_mask, vertical_fov
 from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.poses import look_at
-from panovocc_cli.io.grid import Grid
+from panovocc_cli.grid import Grid
 
 H_VOX = 0.08
 N = (20, 20, 15)  # room interior in voxels: [0, 1.6] x [0, 1.6] x [0, 1.2] metres

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from semantics_helpers import CLASS_NAMES, pose, render_room
 
-from panovocc_cli.io.grid import Grid, read_grid
+from panovocc_cli.grid import Grid
+from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
 from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
 from panovocc_cli.mapping.params import GeometryParams

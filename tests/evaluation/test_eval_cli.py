@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from panovocc_cli.cli import main
-from panovocc_cli.io.grid import Grid, read_grid, write_grid
+from panovocc_cli.grid import Grid
+from panovocc_cli.io.grid import read_grid, write_grid
 from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
 
 from test_eval_coverage import box_depth, box_room_gt, trajectory

@@ -8,7 +8,7 @@ import pytest
 from panovocc_cli.classes import canonical_name
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.evaluation.metrics import count_pair, evaluate
-from panovocc_cli.io.grid import Grid
+from panovocc_cli.grid import Grid
 
 H = 0.08
 GT_NAMES = ["empty", "wall", "floor", "chair", "tv-screen", "pillow"]

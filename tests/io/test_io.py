@@ -7,7 +7,8 @@ import pytest
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.poses import look_at
-from panovocc_cli.io.grid import Grid, read_grid, write_grid
+from panovocc_cli.grid import Grid
+from panovocc_cli.io.grid import read_grid, write_grid
 from panovocc_cli.io.images import read_depth
 from panovocc_cli.io.poses import read_poses, write_poses, write_tum
 from panovocc_cli.io.sequence import Sequence, SequenceMeta, write_frame, write_meta, write_sequence_poses

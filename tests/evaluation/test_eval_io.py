@@ -13,7 +13,7 @@ from panovocc_cli.evaluation.render_grid import drawing_box, render_voxels
 from panovocc_cli.evaluation.replicaocc import SafeUnpickler, read_replicaocc, write_replicaocc
 from panovocc_cli.evaluation.show import render_panels, save_panels
 from panovocc_cli.evaluation.tables import to_csv, to_latex, to_markdown, write_tables
-from panovocc_cli.io.grid import Grid
+from panovocc_cli.grid import Grid
 
 
 def replicaocc_dict(h=0.08):
