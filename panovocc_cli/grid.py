@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .classes import canonical_name
 from .errors import PanovoccError
 from .geometry.lattice import index_to_center, origin_to_index
 
@@ -66,6 +67,14 @@ class Grid:
             raise PanovoccError("class_names[0] must be 'empty'", where)
         if len(self.class_names) > MAX_CLASSES:
             raise PanovoccError(f"{len(self.class_names)} classes; at most {MAX_CLASSES} fit in uint8 labels", where)
+        seen: dict[str, int] = {}
+        for k, raw in enumerate(self.class_names[1:], start=1):
+            name = canonical_name(raw)
+            if name in seen:
+                # two ids of one class would be merged by name when scoring and change the scores
+                raise PanovoccError(f"class_names has {name!r} twice (ids {seen[name]} and {k}; names are compared "
+                                    "after lower-casing and tv-screen -> tv, lamp -> lighting)", where)
+            seen[name] = k
         used = np.unique(self.labels)
         bad = used[(used >= len(self.class_names)) & (used < OCCUPIED_UNKNOWN_CLASS)]
         if bad.size:

@@ -31,8 +31,13 @@ def eval_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (scores in percent) instead of a table."),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for scores.csv/.md/.tex, counts.csv, scores.json."),
 ) -> None:
-    """Score predictions against ground truth (FreeOcc protocol: IoU, per-class IoU, mIoU, percent)."""
-    from ..evaluation.run import EvalConfig, eval_json, format_report, read_pairs_csv, run_eval
+    """Score predictions against ground truth (FreeOcc protocol: IoU, per-class IoU, mIoU, percent).
+
+    mIoU is FreeOcc's: the mean over every class of the set, a class absent from the ground truth
+    scoring 0; the mean over the classes present is printed beside it when the two differ.
+    """
+    from ..evaluation.run import EvalConfig, eval_json, format_report, run_eval
+    from ..io.pairs import read_pairs_csv
 
     all_pairs = parse_pair_tokens(paths or [])
     if pairs is not None:
@@ -117,34 +122,47 @@ def show_cmd(
 
 @convert_app.command("replicaocc")
 def convert_replicaocc_cmd(
-    pkl: Path = typer.Argument(..., help="ReplicaOcc/FreeOcc global_occ_package/<scene>.pkl."),
+    pkl: Path = typer.Argument(..., help="ReplicaOcc/FreeOcc global_occ_package/<scene>.pkl (dense or flat form)."),
     out_npz: Path = typer.Argument(..., help="Output grid .npz."),
     class_names: Optional[str] = typer.Option(
-        None, "--class-names", help="Names of the label ids: a text file (one a line) or a comma list; ids 1.. "
-                                    "unless the first name is empty/free/unlabeled (then ids 0..)."),
+        None, "--class-names", help="Names of the label ids: a text file (one a line), 'replica' or a comma list; "
+                                    "ids 1.. unless the first name is empty/free/unlabeled (then ids 0..). "
+                                    "Default: the file's class_names key, else FreeOcc's replica_name.txt (101)."),
     voxel_size: Optional[float] = typer.Option(
         None, "--voxel-size", help="Voxel edge, metres (default: the file's voxel_size key, else 0.08)."),
     tol_m: Optional[float] = typer.Option(None, "--tol-m", help="Metres a centre may be off the lattice "
                                                                 "(default: a quarter voxel)."),
     allow_shift: bool = typer.Option(False, "--allow-shift", help="Translate an off-lattice grid onto the lattice."),
 ) -> None:
-    """ReplicaOcc .pkl (global_labels, global_pts, scene_dim) -> grid .npz."""
+    """ReplicaOcc .pkl (scene_dim, global_labels, global_pts[, global_mask]) -> grid .npz."""
     from ..evaluation.run import ConvertReplicaOccConfig, run_convert_replicaocc
 
-    g, shift = run_convert_replicaocc(ConvertReplicaOccConfig(pkl, out_npz, class_names, voxel_size, tol_m,
-                                                              allow_shift))
+    g, shift, names_from = run_convert_replicaocc(
+        ConvertReplicaOccConfig(pkl, out_npz, class_names, voxel_size, tol_m, allow_shift))
     occ = int(((g.labels != 0) & (g.labels != 255)).sum())
+    src = {"given": "given", "file": "from the file", "replica": "FreeOcc's replica_name.txt"}[names_from]
     typer.echo(f"wrote {out_npz}: {tuple(g.labels.shape)} voxels of {g.voxel_size:g} m, {occ} occupied, "
-               f"{len(g.class_names) - 1} classes" + (f", shifted by {shift.round(4).tolist()} m" if shift.any() else ""))
+               f"{len(g.class_names) - 1} class names ({src})"
+               + (f", shifted by {shift.round(4).tolist()} m" if shift.any() else ""))
 
 
 @convert_app.command("to-replicaocc")
 def convert_to_replicaocc_cmd(
-    grid: Path = typer.Argument(..., help="Grid .npz."),
-    out_pkl: Path = typer.Argument(..., help="Output .pkl in the ReplicaOcc form."),
+    grid: Path = typer.Argument(..., help="Grid .npz (ground truth or prediction)."),
+    out_pkl: Path = typer.Argument(..., help="Output .pkl in FreeOcc's dense global_occ_package form."),
+    ids: str = typer.Option("replica", "--ids", help="Label ids to write: replica (FreeOcc's, 1 + line of "
+                                                     "replica_name.txt, matched by name) | own (the grid's)."),
+    prediction: bool = typer.Option(False, "--prediction",
+                                    help="The grid is a prediction: write unknown (255) as 0, since FreeOcc's "
+                                         "scripts count every label > 0 as occupied."),
+    like: Optional[Path] = typer.Option(None, "--like", help="Ground-truth grid .npz whose voxels to write (FreeOcc "
+                                                             "compares arrays index by index)."),
 ) -> None:
-    """Grid .npz -> ReplicaOcc .pkl (every voxel; class_names and voxel_size keys added)."""
-    from ..evaluation.run import run_convert_to_replicaocc
+    """Grid .npz -> ReplicaOcc .pkl that FreeOcc's load_full_scene_occ reads (voxel_size, class_names keys added)."""
+    from ..evaluation.run import ConvertToReplicaOccConfig, run_convert_to_replicaocc
 
-    g = run_convert_to_replicaocc(grid, out_pkl)
-    typer.echo(f"wrote {out_pkl}: {g.labels.size} voxels, scene_dim {list(g.labels.shape)}")
+    g, unmatched = run_convert_to_replicaocc(ConvertToReplicaOccConfig(grid, out_pkl, ids.strip().lower(),
+                                                                       prediction, like))
+    typer.echo(f"wrote {out_pkl}: scene_dim {list(g.labels.shape)} of {g.voxel_size:g} m, {ids} ids"
+               + (", unknown written as 0 (prediction)" if prediction else "")
+               + (f"; no Replica id for {', '.join(unmatched)} (written as 254, occupied)" if unmatched else ""))

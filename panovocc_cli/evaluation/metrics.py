@@ -7,8 +7,14 @@
 * Occupied = a label other than 0 and 255 (254, occupied with no class, is occupied).
 * IoU = TP / (TP + FP + FN) on occupied/not-occupied; per-class IoU the same on one class, classes
   matched by canonical **name** (:func:`panovocc_cli.classes.canonical_name`) across the two grids.
-* mIoU = mean of the per-class IoUs over the chosen class set, restricted to the classes **present
-  in the ground truth**: at least one scored ground-truth voxel carries the class.
+* mIoU (the headline), as FreeOcc's released evaluation code computes it (``SSCMetricsTorch`` in
+  ``src/scannet_utils/eval_utils.py``, averaged in ``scripts/src/eval_occ_replica.py``): the mean,
+  over **every** class of the chosen set, of ``tp / (tp + fp + fn + 1e-5)`` (their ``_safe_div``
+  adds a further 1e-8 to the denominator; so do we). A class absent from the ground truth and from
+  the prediction scores 0, not NaN, and counts in the mean.
+* ``miou_present``: the mean of the exact per-class IoUs over the classes of the set **present in
+  the ground truth** (at least one scored ground-truth voxel carries the class), reported beside the
+  headline and labelled wherever the two differ (some class of the set is absent).
 * Several pairs are pooled by summing counts before dividing.
 * Undefined ratios (0 / 0: empty union) are NaN, shown as ``n/a`` and written as JSON ``null``; an
   empty prediction against a non-empty ground truth has IoU 0 (defined).
@@ -34,6 +40,12 @@ from .align import overlap
 MASKS: tuple[str, ...] = ("freeocc", "observed")
 HEADLINE_MASK = "freeocc"
 MASK_LABELS = {"freeocc": "FreeOcc (headline)", "observed": "observed only"}
+
+# FreeOcc's per-class IoU: ``_safe_div(tps, tps + fps + fns + 1e-5)`` with ``_safe_div(num, den, eps=1e-8)
+# = num / (den + eps)``. Kept as two constants, added in their order, so the float64 result is theirs bit
+# for bit.
+FREEOCC_CLASS_EPS = 1e-5
+FREEOCC_SAFE_DIV_EPS = 1e-8
 
 
 @dataclass
@@ -163,6 +175,16 @@ def _ratio(tp: int, fp: int, fn: int) -> float:
     return 100.0 * tp / den if den > 0 else math.nan
 
 
+def freeocc_class_iou(tp: int, fp: int, fn: int) -> float:
+    """One class's IoU as FreeOcc's code computes it, percent: ``tp / (tp + fp + fn + 1e-5 + 1e-8)``.
+
+    Never NaN: a class neither side has scores 0. Differs from the exact ratio by under 1e-5 / (tp + fp
+    + fn) relative.
+    """
+    den = (float(tp) + float(fp) + float(fn) + FREEOCC_CLASS_EPS) + FREEOCC_SAFE_DIV_EPS
+    return 100.0 * (float(tp) / den)
+
+
 @dataclass
 class Result:
     """Scores of one or several pooled pairs under one mask (all scores in percent).
@@ -196,21 +218,50 @@ class Result:
         v = self.counts.classes.get(canonical_name(name))
         return 0 if v is None else int(v[0] + v[2])
 
+    def class_iou_freeocc(self, name: str) -> float:
+        """IoU of one class as FreeOcc's code computes it (:func:`freeocc_class_iou`), percent, never NaN."""
+        v = self.counts.classes.get(canonical_name(name))
+        return 0.0 if v is None else freeocc_class_iou(int(v[0]), int(v[1]), int(v[2]))
+
     @property
     def present(self) -> list[str]:
-        """Classes of the set present in the ground truth (>= 1 scored voxel): those mIoU averages."""
+        """Classes of the set present in the ground truth (>= 1 scored voxel): those ``miou_present`` averages."""
         return [n for n in self.classes if self.gt_voxels(n) > 0]
 
     @property
+    def absent(self) -> list[str]:
+        """Classes of the set absent from the ground truth (they score 0 in the headline mIoU)."""
+        return [n for n in self.classes if self.gt_voxels(n) == 0]
+
+    @property
     def per_class(self) -> dict[str, float]:
-        """Per-class IoU (percent) for every class of the set (NaN when neither side has it)."""
+        """Per-class IoU (percent, exact ratio) for every class of the set (NaN when neither side has it)."""
         return {n: self.class_iou(n) for n in self.classes}
 
     @property
+    def per_class_freeocc(self) -> dict[str, float]:
+        """Per-class IoU as FreeOcc's code computes it (percent; 0 for a class neither side has)."""
+        return {n: self.class_iou_freeocc(n) for n in self.classes}
+
+    @property
     def miou(self) -> float:
-        """Mean IoU over the classes of the set present in the ground truth (NaN if none is)."""
+        """Headline mIoU, FreeOcc's rule: mean of :meth:`class_iou_freeocc` over **every** class of the set.
+
+        A class absent from the ground truth counts with its FreeOcc IoU (0). NaN only for an empty set.
+        """
+        vals = [self.class_iou_freeocc(n) for n in self.classes]
+        return float(np.mean(vals)) if vals else math.nan
+
+    @property
+    def miou_present(self) -> float:
+        """Mean exact IoU over the classes of the set present in the ground truth (NaN if none is)."""
         vals = [self.class_iou(n) for n in self.present]
         return float(np.mean(vals)) if vals else math.nan
+
+    @property
+    def miou_rules_differ(self) -> bool:
+        """True when a class of the set is absent from the ground truth, so the two mIoU rules differ."""
+        return bool(self.absent)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (NaN -> None)."""
@@ -219,22 +270,26 @@ class Result:
             "mask": self.mask,
             "classes": list(self.classes),
             "present": self.present,
+            "absent": self.absent,
             "iou": _nan_none(self.iou),
             "miou": _nan_none(self.miou),
+            "miou_rule": "freeocc: mean over every class of the set, tp/(tp+fp+fn+1e-5), absent classes 0",
+            "miou_present": _nan_none(self.miou_present),
             "per_class": {n: _nan_none(v) for n, v in self.per_class.items()},
+            "per_class_freeocc": dict(self.per_class_freeocc),
             "counts": {"tp": c.tp, "fp": c.fp, "fn": c.fn, "tn": c.tn, "scored": c.scored, "pairs": c.pairs},
             "class_counts": {n: {"tp": int(v[0]), "fp": int(v[1]), "fn": int(v[2])} for n, v in c.classes.items()},
             "info": dict(self.info),
         }
 
     def to_dataframe(self, name: str | None = None):
-        """One-row pandas DataFrame: ``IoU``, ``mIoU`` then one column per class of the set (percent).
+        """One-row pandas DataFrame: ``IoU``, ``mIoU`` (FreeOcc), ``mIoU_present``, then one column per class.
 
         The row is indexed by ``name`` (default: the mask), so results concatenate into a table.
         """
         import pandas as pd
 
-        row = {"mask": self.mask, "IoU": self.iou, "mIoU": self.miou}
+        row = {"mask": self.mask, "IoU": self.iou, "mIoU": self.miou, "mIoU_present": self.miou_present}
         row.update(self.per_class)
         return pd.DataFrame([row], index=[name if name is not None else self.mask])
 

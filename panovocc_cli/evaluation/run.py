@@ -9,20 +9,21 @@ Each takes a config dataclass (the CLI builds it from its options) and is usable
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from ..errors import PanovoccError
-from ..io.atomic import write_text
+from ..io.atomic import check_output_path, output_folder, write_text
 from ..io.grid import read_grid, write_grid
+from ..io.tables import write_csv
+from ..io.tables import write_tables as write_table_files
 from .metrics import HEADLINE_MASK, MASK_LABELS, MASKS, Result, evaluate, resolve_classes
-from .tables import counts_csv, write_tables
+from .tables import counts_rows, table_rows
 
 
 def _jsonable(x: Any) -> Any:
@@ -59,30 +60,6 @@ class EvalConfig:
     out_dir: Path | None = None
 
 
-def read_pairs_csv(path: str | Path) -> list[tuple[Path, Path]]:
-    """Pairs from a CSV: two columns (prediction, ground truth), optional header ``pred,gt``, ``#`` comments.
-
-    Relative paths are resolved against the CSV's folder.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise PanovoccError("pairs CSV not found", path)
-    pairs = []
-    with open(path, newline="", encoding="utf-8") as f:
-        for n, row in enumerate(csv.reader(f), start=1):
-            row = [c.strip() for c in row]
-            if not row or not any(row) or row[0].startswith("#"):
-                continue
-            if len(row) < 2:
-                raise PanovoccError(f"line {n}: expected two columns (prediction, ground truth)", path)
-            if n == 1 and row[0].lower() in ("pred", "prediction") and row[1].lower() in ("gt", "ground_truth"):
-                continue
-            pairs.append(tuple(p if p.is_absolute() else path.parent / p for p in (Path(row[0]), Path(row[1]))))
-    if not pairs:
-        raise PanovoccError("no pairs listed (expected lines 'prediction.npz,ground_truth.npz')", path)
-    return pairs  # type: ignore[return-value]
-
-
 def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     """Score the pairs (each, and pooled) under both masks; write tables when ``cfg.out_dir`` is set.
 
@@ -94,6 +71,8 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
         raise PanovoccError(f"unknown mask {cfg.mask!r} (expected {' or '.join(MASKS)})")
     if not cfg.pairs:
         raise PanovoccError("no pairs to score (give PRED GT, --pair or --pairs)")
+    if cfg.out_dir is not None:
+        check_output_path(cfg.out_dir, folder=True)
     per_pair = []
     for pred_path, gt_path in cfg.pairs:
         pred, gt = read_grid(pred_path), read_grid(gt_path)
@@ -121,9 +100,23 @@ def row_names(cfg: EvalConfig) -> list[str]:
     return stems
 
 
+def write_score_tables(results: Sequence[Result], names: Sequence[str], out_dir: str | Path,
+                       stem: str = "scores") -> list[Path]:
+    """Write ``<stem>.csv``, ``<stem>.md`` and ``<stem>.tex`` (one row per Result) into ``out_dir``."""
+    header, rows = table_rows(results, names)
+    return write_table_files(header, rows, out_dir, stem)
+
+
 def write_eval_outputs(out: dict[str, Any], cfg: EvalConfig) -> list[Path]:
-    """scores.{csv,md,tex} (rows: each pair then pooled, both masks), counts.csv, scores.json, config.json."""
-    d = Path(cfg.out_dir)  # type: ignore[arg-type]
+    """scores.{csv,md,tex} (rows: each pair then pooled, both masks), counts.csv, scores.json, config.json.
+
+    A folder this creates is removed again if writing fails (nothing half-done is left).
+    """
+    with output_folder(cfg.out_dir) as d:  # type: ignore[arg-type]
+        return _write_eval_files(out, cfg, d)
+
+
+def _write_eval_files(out: dict[str, Any], cfg: EvalConfig, d: Path) -> list[Path]:
     results, names = [], []
     if len(cfg.pairs) > 1:
         for name, res in zip(row_names(cfg), out["pairs"]):
@@ -133,8 +126,8 @@ def write_eval_outputs(out: dict[str, Any], cfg: EvalConfig) -> list[Path]:
     for m in MASKS:
         results.append(out["pooled"][m])
         names.append("pooled" if len(cfg.pairs) > 1 else row_names(cfg)[0])
-    paths = write_tables(results, names, d, "scores")
-    write_text(d / "counts.csv", counts_csv(results, names))
+    paths = write_score_tables(results, names, d, "scores")
+    write_csv(d / "counts.csv", *counts_rows(results, names))
     write_text(d / "scores.json", json.dumps(eval_json(out, cfg.mask), indent=2) + "\n")
     write_config(d / "config.json", cfg)
     return paths + [d / "counts.csv", d / "scores.json", d / "config.json"]
@@ -163,12 +156,16 @@ def format_report(out: dict[str, Any]) -> str:
              f"{'':24}{MASK_LABELS['freeocc']:>20}{MASK_LABELS['observed']:>16}",
              f"{'IoU (occupancy)':24}{cell(f.iou):>20}{cell(o.iou):>16}",
              f"{'mIoU':24}{cell(f.miou):>20}{cell(o.miou):>16}"]
+    if f.miou_rules_differ or o.miou_rules_differ:
+        lines.append(f"{'mIoU (present only)':24}{cell(f.miou_present):>20}{cell(o.miou_present):>16}")
+        lines.append(f"  (mIoU is FreeOcc's: the mean over all {len(f.classes)} classes, an absent class "
+                     f"scoring 0; 'present only' averages the {len(f.present)} in the ground truth)")
     present = set(f.present)
     for c in f.classes:
         if c in present:
             lines.append(f"  {c:22}{cell(f.class_iou(c)):>20}{cell(o.class_iou(c)):>16}")
         else:
-            lines.append(f"  {c:22}{'absent from GT':>20}{'':>16}")
+            lines.append(f"  {c:22}{'absent from GT (0)':>20}{'':>16}")
     lines.append(f"scored voxels: {f.counts.scored} (FreeOcc), {o.counts.scored} (observed); "
                  f"occupied TP {f.counts.tp} FP {f.counts.fp} FN {f.counts.fn}")
     return "\n".join(lines)
@@ -207,10 +204,12 @@ def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
     """
     from tqdm import tqdm
 
+    from ..io.coverage import write_coverage_csv
     from ..io.sequence import Sequence
     from .coverage import CoverageTracker, frame_schedule, vertical_fov
     from .show import plot_coverage
 
+    check_output_path(cfg.out_dir, folder=True)
     seq = Sequence(cfg.seq)
     if seq.meta.camera != "erp":
         raise PanovoccError("coverage needs a panoramic (ERP) sequence; this one is pinhole", cfg.seq)
@@ -230,12 +229,11 @@ def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
         persp.append(c["perspective"])
     res = {"frame": np.asarray(frames, dtype=np.int64), "panoramic": np.asarray(pano),
            "perspective": np.asarray(persp)}
-    out = Path(cfg.out_dir)
-    lines = ["frame,panoramic,perspective"] + [f"{f},{a:.6f},{b:.6f}" for f, a, b in zip(frames, pano, persp)]
-    write_text(out / "coverage.csv", "\n".join(lines) + "\n")
-    plot_coverage(res["frame"], res["panoramic"], res["perspective"], out / "coverage.png",
-                  title=f"{Path(cfg.seq).name}: {tracker.total} GT occupied voxels", hfov_deg=cfg.hfov_deg)
-    write_config(out / "config.json", cfg)
+    with output_folder(cfg.out_dir) as out:  # removed again if writing fails
+        write_coverage_csv(out / "coverage.csv", res["frame"], res["panoramic"], res["perspective"])
+        plot_coverage(res["frame"], res["panoramic"], res["perspective"], out / "coverage.png",
+                      title=f"{Path(cfg.seq).name}: {tracker.total} GT occupied voxels", hfov_deg=cfg.hfov_deg)
+        write_config(out / "config.json", cfg)
     res["vfov_deg"] = np.float64(math.degrees(vfov))
     res["total"] = np.int64(tracker.total)
     return res
@@ -273,7 +271,15 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
 # -------------------------------------------------------------------------------------- convert
 @dataclass
 class ConvertReplicaOccConfig:
-    """Options of ``panovocc convert replicaocc``."""
+    """Options of ``panovocc convert replicaocc``.
+
+    pkl : ``global_occ_package/<scene>.pkl`` (dense or flat form); out_npz : output grid
+    class_names : names of the ids (a file, ``replica`` or a comma list); None: the file's
+        ``class_names`` key, else FreeOcc's Replica list
+    voxel_size : metres (None: the file's ``voxel_size`` key, else 0.08)
+    tol_m : metres a centre may be off the lattice (None: a quarter voxel)
+    allow_shift : translate an off-lattice grid onto the lattice
+    """
 
     pkl: Path
     out_npz: Path
@@ -284,19 +290,62 @@ class ConvertReplicaOccConfig:
 
 
 def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
-    """ReplicaOcc ``.pkl`` -> grid ``.npz``; returns (Grid, shift (3,) metres)."""
-    from .replicaocc import parse_class_names, read_replicaocc
+    """ReplicaOcc ``.pkl`` -> grid ``.npz``.
 
+    Returns
+    -------
+    grid : Grid; shift : (3,) metres the grid was moved by; names_from : ``given``, ``file`` or
+    ``replica`` (FreeOcc's Replica list)
+    """
+    from ..io.replicaocc import class_names_source, load_pickle, parse_class_names, replicaocc_to_grid
+
+    check_output_path(cfg.out_npz, folder=False)
     names = parse_class_names(cfg.class_names) if cfg.class_names else None
-    grid, shift = read_replicaocc(cfg.pkl, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift)
+    data = load_pickle(cfg.pkl)
+    grid, shift = replicaocc_to_grid(data, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift, cfg.pkl)
     write_grid(cfg.out_npz, grid)
-    return grid, shift
+    return grid, shift, class_names_source(data, names)
 
 
-def run_convert_to_replicaocc(grid_path: Path, out_pkl: Path):
-    """Grid ``.npz`` -> ReplicaOcc ``.pkl``; returns the Grid."""
-    from .replicaocc import write_replicaocc
+@dataclass
+class ConvertToReplicaOccConfig:
+    """Options of ``panovocc convert to-replicaocc``.
 
-    grid = read_grid(grid_path)
-    write_replicaocc(out_pkl, grid)
-    return grid
+    grid : grid ``.npz``; out_pkl : output ``.pkl`` (dense form, FreeOcc's loader reads it)
+    ids : ``replica`` (FreeOcc's ids, 1 + line of replica_name.txt) or ``own`` (the grid's ids)
+    prediction : the grid is a prediction: unknown (255) is written as 0 (FreeOcc counts > 0 as occupied)
+    like : a grid ``.npz`` (the ground truth) whose voxels the output covers, so FreeOcc's
+        index-by-index comparison lines up; None: the grid's own extent
+    """
+
+    grid: Path
+    out_pkl: Path
+    ids: str = "replica"
+    prediction: bool = False
+    like: Path | None = None
+
+
+def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
+    """Grid ``.npz`` -> dense ReplicaOcc ``.pkl``.
+
+    Returns
+    -------
+    grid : the Grid written (on ``like``'s voxels when given); unmatched : class names written as 254
+    """
+    from ..grid import Grid
+    from ..io.replicaocc import write_replicaocc
+    from .align import resample_onto
+
+    if cfg.ids not in ("replica", "own"):
+        raise PanovoccError(f"--ids must be replica or own, got {cfg.ids!r}")
+    check_output_path(cfg.out_pkl, folder=False)
+    grid = read_grid(cfg.grid)
+    if cfg.like is not None:
+        ref = read_grid(cfg.like)
+        try:
+            labels = resample_onto(grid, ref)
+        except PanovoccError as e:
+            raise PanovoccError(f"{cfg.grid} vs {cfg.like}: {e}") from None
+        grid = Grid(labels, ref.origin, ref.voxel_size, grid.class_names)
+    unmatched = write_replicaocc(cfg.out_pkl, grid, cfg.ids, cfg.prediction)
+    return grid, unmatched

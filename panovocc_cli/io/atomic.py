@@ -65,6 +65,57 @@ def atomic_dir(path: str | Path, overwrite: bool = True) -> Iterator[Path]:
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+def check_output_path(path: str | Path, folder: bool = False) -> None:
+    """Refuse an output path that cannot be written: an existing ancestor that is a file, or the wrong kind.
+
+    Parameters
+    ----------
+    path : the output file or folder
+    folder : True when a folder is expected (an existing file there is refused), False for a file (an
+        existing folder there is refused)
+
+    Raises
+    ------
+    PanovoccError naming the offending path (exit status 2).
+    """
+    from ..errors import PanovoccError
+
+    path = Path(path)
+    for parent in Path(os.path.abspath(os.fspath(path))).parents:
+        if parent.exists() or parent.is_symlink():
+            if not parent.is_dir():
+                raise PanovoccError("cannot write here: a parent of the output is a file, not a folder", parent)
+            break
+    if folder and (path.exists() or path.is_symlink()) and not path.is_dir():
+        raise PanovoccError("exists and is not a folder (expected an output folder)", path)
+    if not folder and path.is_dir():
+        raise PanovoccError("is a folder; expected an output file path", path)
+
+
+@contextlib.contextmanager
+def output_folder(path: str | Path) -> Iterator[Path]:
+    """Create the output folder ``path`` (and missing parents) for the block; remove what it created on failure.
+
+    A folder that existed before is kept as it was around the block (files the block wrote atomically
+    into it stay); a folder this call created is removed whole if the block raises, so a failed command
+    leaves no empty folder behind.
+    """
+    path = Path(path)
+    check_output_path(path, folder=True)
+    created = None
+    for p in [path, *path.parents]:
+        if p.exists() or p.is_symlink():
+            break
+        created = p
+    path.mkdir(parents=True, exist_ok=True)
+    try:
+        yield path
+    except BaseException:
+        if created is not None:
+            shutil.rmtree(created, ignore_errors=True)
+        raise
+
+
 def write_text(path: str | Path, text: str) -> None:
     """Atomically write a text file (UTF-8)."""
     with atomic_path(path) as tmp:

@@ -101,17 +101,30 @@ def test_show_and_convert_commands(capsys, tmp_path, pair):
     code, _, err = run(capsys, "show", pred, gt, tmp_path / "pic.png", "--titles", "only one")
     assert code == 2 and "titles" in err
 
-    code, _, err = run(capsys, "convert", "to-replicaocc", gt, tmp_path / "gt.pkl")
-    assert code == 0, err
+    code, out, err = run(capsys, "convert", "to-replicaocc", gt, tmp_path / "gt.pkl")
+    assert code == 0 and "replica ids" in out, err
     with open(tmp_path / "gt.pkl", "rb") as f:
         d = pickle.load(f)
-    assert set(d) >= {"global_labels", "global_pts", "scene_dim"}
+    a = read_grid(gt)
+    assert set(d) >= {"global_labels", "global_pts", "scene_dim", "global_mask"}
+    assert d["global_labels"].shape == a.labels.shape and d["global_pts"].shape == a.labels.shape + (3,)
+    # FreeOcc's ids: 1 + the line of replica_name.txt (wall is line 92, floor line 39, 0-based)
+    assert set(np.unique(d["global_labels"])) <= {0, 40, 93, 255}
+    code, out, err = run(capsys, "convert", "replicaocc", tmp_path / "gt.pkl", tmp_path / "back.npz")
+    assert code == 0 and "from the file" in out, err
+    b = read_grid(tmp_path / "back.npz")
+    names_a = np.array(a.class_names + [""] * 256)[:256]
+    names_b = np.array(b.class_names + [""] * 256)[:256]
+    assert np.array_equal(names_a[a.labels], names_b[b.labels]) and np.array_equal(a.origin, b.origin)
+    # the grid's own ids, named by a file
+    code, _, err = run(capsys, "convert", "to-replicaocc", gt, tmp_path / "own.pkl", "--ids", "own")
+    assert code == 0, err
     (tmp_path / "names.txt").write_text("# ids 1..\nwall\nfloor\n")
-    code, out, err = run(capsys, "convert", "replicaocc", tmp_path / "gt.pkl", tmp_path / "back.npz",
+    code, out, err = run(capsys, "convert", "replicaocc", tmp_path / "own.pkl", tmp_path / "back2.npz",
                          "--class-names", tmp_path / "names.txt")
     assert code == 0, err
-    a, b = read_grid(gt), read_grid(tmp_path / "back.npz")
+    b = read_grid(tmp_path / "back2.npz")
     assert np.array_equal(a.labels, b.labels) and a.class_names == b.class_names
-    code, _, err = run(capsys, "convert", "replicaocc", tmp_path / "gt.pkl", tmp_path / "x.npz", "--class-names",
+    code, _, err = run(capsys, "convert", "replicaocc", tmp_path / "own.pkl", tmp_path / "x.npz", "--class-names",
                        "wall", "--voxel-size", "0.1")
     assert code == 2 and "voxel_size" in err and not (tmp_path / "x.npz").exists()

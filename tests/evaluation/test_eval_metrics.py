@@ -73,7 +73,12 @@ def test_counts_match_plain_python(seed, mask):
         assert n in cls or v.tolist() == [0, 0, 0]
 
 
-def test_scores_from_counts_and_miou_over_present_classes():
+def freeocc_iou(tp, fp, fn):
+    """FreeOcc's per-class IoU, percent, written out: tp / ((tp + fp + fn + 1e-5) + 1e-8)."""
+    return 100.0 * tp / ((tp + fp + fn + 1e-5) + 1e-8)
+
+
+def test_scores_from_counts_and_both_miou_rules():
     gt, pred = random_pair(3)
     r = evaluate([(pred, gt)], "wall,floor,chair,tv,sofa,bed")["freeocc"]
     occ, cls = brute_force(pred, gt, "freeocc")
@@ -81,9 +86,14 @@ def test_scores_from_counts_and_miou_over_present_classes():
     present = [n for n in ["wall", "floor", "chair", "tv", "sofa", "bed"] if cls.get(n, [0, 0, 0])[0] + cls.get(n, [0, 0, 0])[2] > 0]
     assert r.present == present and "sofa" not in present and "bed" not in present  # only the prediction knows sofa
     expect = np.mean([100 * cls[n][0] / sum(cls[n]) for n in present])
-    assert r.miou == pytest.approx(expect)
-    assert r.class_iou("sofa") == 0.0  # predicted but absent from GT: IoU 0, not in mIoU
-    assert math.isnan(r.class_iou("bed"))  # neither side: undefined
+    assert r.miou_present == pytest.approx(expect)
+    # the headline: FreeOcc's mean over all six classes of the set, sofa and bed (absent) scoring 0
+    every = [freeocc_iou(*cls.get(n, [0, 0, 0])) for n in ["wall", "floor", "chair", "tv", "sofa", "bed"]]
+    assert r.miou == pytest.approx(np.mean(every), rel=1e-12) and r.miou < r.miou_present
+    assert r.absent == ["sofa", "bed"] and r.miou_rules_differ
+    assert r.class_iou("sofa") == 0.0  # predicted but absent from GT: IoU 0
+    assert math.isnan(r.class_iou("bed"))  # neither side: undefined as a ratio ...
+    assert r.class_iou_freeocc("bed") == 0.0  # ... and 0 under FreeOcc's epsilon
 
 
 def test_invariant_to_origin_extent_and_class_order():
@@ -135,7 +145,7 @@ def test_edge_cases():
     # empty prediction: IoU 0 (defined), every present class 0
     empty = grid(np.zeros((1, 2, 2)), (0, 0, 0), ["empty"])
     r = evaluate([(empty, gt)], "all")["freeocc"]
-    assert r.iou == 0.0 and r.miou == 0.0 and r.present == ["wall", "floor"]
+    assert r.iou == 0.0 and r.miou == 0.0 and r.miou_present == 0.0 and r.present == ["wall", "floor"]
     # no overlap: everything in the GT is predicted not-occupied; observed mask scores nothing
     far = grid(np.ones((2, 2, 2)), (100, 100, 100), ["empty", "wall"])
     r = evaluate([(far, gt)], "all")
@@ -145,10 +155,13 @@ def test_edge_cases():
     occ = grid(np.array([[[254, 254], [254, 254]]]), (0, 0, 0), ["empty"])
     r = evaluate([(occ, gt)], "all")["freeocc"]
     assert (r.counts.tp, r.counts.fp, r.counts.fn) == (2, 1, 0) and r.miou == 0.0
-    # a class only the GT knows: IoU 0 and in mIoU; a class set absent from GT: mIoU undefined
+    # a class absent from the GT counts 0 in FreeOcc's mIoU, and not at all in the present-only mean;
+    # FreeOcc's 1e-5 makes a perfect one-voxel class 99.999
     r = evaluate([(gt, gt)], "wall,floor,chair")["freeocc"]
-    assert r.miou == 100.0 and r.present == ["wall", "floor"]
-    assert math.isnan(evaluate([(gt, gt)], "bed")["freeocc"].miou)
+    assert r.miou_present == 100.0 and r.present == ["wall", "floor"]
+    assert r.miou == pytest.approx((2 * freeocc_iou(1, 0, 0) + 0.0) / 3, rel=1e-15)
+    only_absent = evaluate([(gt, gt)], "bed")["freeocc"]
+    assert only_absent.miou == 0.0 and math.isnan(only_absent.miou_present)
     # observed mask drops what the prediction left unknown
     half = grid(np.array([[[1, 255], [255, 255]]]), (0, 0, 0), ["empty", "wall"])
     r = evaluate([(half, gt)], "all")
