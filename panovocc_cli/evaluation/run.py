@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import PanovoccError
-from ..io.atomic import check_output_path, output_folder, write_text
+from ..io.atomic import check_output_path, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
 from ..io.tables import write_csv
 from ..io.tables import write_tables as write_table_files
@@ -263,12 +263,24 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
         raise PanovoccError(f"--width-px must be >= 64, got {cfg.width_px}")
     if cfg.out_png.suffix.lower() != ".png":
         raise PanovoccError("output must be a .png file", cfg.out_png)
+    check_output_path(cfg.out_png, folder=False)
+    _not_an_input(cfg.out_png, cfg.grids)
     grids = [read_grid(p) for p in cfg.grids]
     images, legend = render_panels(grids, cfg.cut_top, panel_px=max(64, cfg.width_px // len(grids)))
-    return save_panels(images, legend, cfg.out_png, cfg.titles, cfg.width_px)
+    with output_file(cfg.out_png):
+        return save_panels(images, legend, cfg.out_png, cfg.titles, cfg.width_px)
 
 
 # -------------------------------------------------------------------------------------- convert
+def _not_an_input(out: Path, inputs) -> None:
+    """Refuse an output path that is one of the command's inputs (it would be overwritten)."""
+    import os
+
+    for p in inputs:
+        if p is not None and os.path.abspath(p) == os.path.abspath(out):
+            raise PanovoccError(f"output would overwrite the input {p}; choose another output path", out)
+
+
 @dataclass
 class ConvertReplicaOccConfig:
     """Options of ``panovocc convert replicaocc``.
@@ -300,10 +312,12 @@ def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
     from ..io.replicaocc import class_names_source, load_pickle, parse_class_names, replicaocc_to_grid
 
     check_output_path(cfg.out_npz, folder=False)
+    _not_an_input(cfg.out_npz, [cfg.pkl])
     names = parse_class_names(cfg.class_names) if cfg.class_names else None
     data = load_pickle(cfg.pkl)
     grid, shift = replicaocc_to_grid(data, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift, cfg.pkl)
-    write_grid(cfg.out_npz, grid)
+    with output_file(cfg.out_npz):
+        write_grid(cfg.out_npz, grid)
     return grid, shift, class_names_source(data, names)
 
 
@@ -339,6 +353,7 @@ def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
     if cfg.ids not in ("replica", "own"):
         raise PanovoccError(f"--ids must be replica or own, got {cfg.ids!r}")
     check_output_path(cfg.out_pkl, folder=False)
+    _not_an_input(cfg.out_pkl, [cfg.grid, cfg.like])
     grid = read_grid(cfg.grid)
     if cfg.like is not None:
         ref = read_grid(cfg.like)
@@ -347,5 +362,6 @@ def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
         except PanovoccError as e:
             raise PanovoccError(f"{cfg.grid} vs {cfg.like}: {e}") from None
         grid = Grid(labels, ref.origin, ref.voxel_size, grid.class_names)
-    unmatched = write_replicaocc(cfg.out_pkl, grid, cfg.ids, cfg.prediction)
+    with output_file(cfg.out_pkl):
+        unmatched = write_replicaocc(cfg.out_pkl, grid, cfg.ids, cfg.prediction)
     return grid, unmatched

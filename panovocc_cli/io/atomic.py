@@ -107,13 +107,34 @@ def output_folder(path: str | Path) -> Iterator[Path]:
         if p.exists() or p.is_symlink():
             break
         created = p
-    path.mkdir(parents=True, exist_ok=True)
     try:
+        path.mkdir(parents=True, exist_ok=True)
         yield path
-    except BaseException:
+    except BaseException as e:
         if created is not None:
             shutil.rmtree(created, ignore_errors=True)
+        if isinstance(e, OSError):  # disk full, read-only file system, permissions
+            raise _write_error(e, path) from None
         raise
+
+
+@contextlib.contextmanager
+def output_file(path: str | Path) -> Iterator[Path]:
+    """Check an output file path (:func:`check_output_path`) and turn an ``OSError`` raised while writing it
+    (disk full, read-only file system) into one :class:`PanovoccError` line. Write atomically inside."""
+    path = Path(path)
+    check_output_path(path, folder=False)
+    try:
+        yield path
+    except OSError as e:
+        raise _write_error(e, path) from None
+
+
+def _write_error(e: OSError, path: Path):
+    from ..errors import PanovoccError
+
+    where = e.filename if getattr(e, "filename", None) else path
+    return PanovoccError(f"cannot write ({e.strerror or type(e).__name__})", where)
 
 
 def write_text(path: str | Path, text: str) -> None:

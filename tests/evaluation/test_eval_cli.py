@@ -128,3 +128,97 @@ def test_show_and_convert_commands(capsys, tmp_path, pair):
     code, _, err = run(capsys, "convert", "replicaocc", tmp_path / "own.pkl", tmp_path / "x.npz", "--class-names",
                        "wall", "--voxel-size", "0.1")
     assert code == 2 and "voxel_size" in err and not (tmp_path / "x.npz").exists()
+
+
+def snapshot(root):
+    """Every path under root with its bytes (files) or None (folders)."""
+    return {p: (p.read_bytes() if p.is_file() else None) for p in sorted(root.rglob("*"))}
+
+
+def test_bad_outputs_and_inputs_one_line_exit_2_nothing_changed(capsys, tmp_path, pair):
+    pred, gt = pair
+    write_box_sequence(tmp_path / "seq", 64)
+    (tmp_path / "afile").write_text("keep me\n")
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "binary.csv").write_bytes(bytes(range(256)) * 4)
+    (tmp_path / "nul.csv").write_text("pred.npz,gt.npz\x00\n")
+    with open(tmp_path / "abc.pkl", "wb") as f:
+        pickle.dump({"global_labels": np.zeros((2, 2, 2), np.uint8), "global_pts": np.zeros((2, 2, 2, 3)),
+                     "voxel_size": "abc"}, f)
+    (tmp_path / "truncated.pkl").write_bytes(pickle.dumps({"global_labels": np.zeros(1000)}, protocol=4)[:300])
+    with open(tmp_path / "list.pkl", "wb") as f:
+        pickle.dump([1, 2, 3], f)
+    code, _, err = run(capsys, "convert", "to-replicaocc", gt, tmp_path / "good.pkl")
+    assert code == 0, err
+    f, d = tmp_path / "afile", tmp_path / "adir"
+    cases = [
+        ["eval", pred, gt, "--out", f / "sub"],  # under an existing file
+        ["eval", pred, gt, "--out", f],  # a file where a folder is expected
+        ["eval", "--pairs", tmp_path / "binary.csv"],
+        ["eval", "--pairs", tmp_path / "nul.csv"],
+        ["eval", "--pairs", d],
+        ["coverage", tmp_path / "seq", gt, "--out", f / "cov"],
+        ["coverage", tmp_path / "seq", gt, "--out", f],
+        ["convert", "to-replicaocc", gt, f / "x.pkl"],
+        ["convert", "to-replicaocc", gt, d],  # a folder where a file is expected
+        ["convert", "to-replicaocc", gt, gt],  # over its own input
+        ["convert", "to-replicaocc", gt, tmp_path / "x.pkl", "--ids", "nope"],
+        ["convert", "replicaocc", tmp_path / "good.pkl", f / "x.npz"],
+        ["convert", "replicaocc", tmp_path / "good.pkl", d],
+        ["convert", "replicaocc", tmp_path / "abc.pkl", tmp_path / "x.npz"],
+        ["convert", "replicaocc", tmp_path / "truncated.pkl", tmp_path / "x.npz"],
+        ["convert", "replicaocc", tmp_path / "list.pkl", tmp_path / "x.npz"],
+        ["convert", "replicaocc", tmp_path / "binary.csv", tmp_path / "x.npz"],
+        ["show", pred, gt, f / "x.png"],
+    ]
+    before = snapshot(tmp_path)
+    for args in cases:
+        code, out, err = run(capsys, *args)
+        assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, (args, err)
+        assert "Traceback" not in err
+    assert snapshot(tmp_path) == before
+
+
+def test_failed_eval_and_coverage_leave_no_folder(capsys, tmp_path, pair, monkeypatch):
+    pred, gt = pair
+    # failing before anything is written: no folder
+    code, _, err = run(capsys, "eval", pred, tmp_path / "missing.npz", "--out", tmp_path / "e1" / "nested")
+    assert code == 2 and not (tmp_path / "e1").exists()
+    # failing while writing (a full disk): the folders this run created are removed, one line, exit 2
+    import errno
+
+    import panovocc_cli.evaluation.run as run_mod
+
+    def disk_full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(run_mod, "write_csv", disk_full)
+    code, _, err = run(capsys, "eval", pred, gt, "--out", tmp_path / "e2" / "nested")
+    assert code == 2 and "No space left" in err and not (tmp_path / "e2").exists()
+    # an existing output folder is kept (and only the files written atomically are new)
+    (tmp_path / "e3").mkdir()
+    code, _, err = run(capsys, "eval", pred, gt, "--out", tmp_path / "e3")
+    assert code == 2 and (tmp_path / "e3").is_dir()
+    monkeypatch.undo()
+    write_box_sequence(tmp_path / "seq", 64)
+    import panovocc_cli.evaluation.show as show_mod
+
+    monkeypatch.setattr(show_mod, "plot_coverage", disk_full)
+    code, _, err = run(capsys, "coverage", tmp_path / "seq", gt, "--out", tmp_path / "c1")
+    assert code == 2 and "No space left" in err and not (tmp_path / "c1").exists()
+    monkeypatch.undo()
+    code, _, err = run(capsys, "coverage", tmp_path / "seq", tmp_path / "missing.npz", "--out", tmp_path / "c2")
+    assert code == 2 and not (tmp_path / "c2").exists()
+
+
+def test_eval_prints_both_miou_rules_when_a_class_is_absent(capsys, pair):
+    pred, gt = pair  # the ground truth has wall and floor only: six eval8 classes are absent
+    code, out, _ = run(capsys, "eval", pred, gt)
+    assert code == 0 and "mIoU (present only)" in out and "absent from GT (0)" in out
+    code, out, _ = run(capsys, "eval", pred, gt, "--json")
+    r = json.loads(out)
+    assert r["absent"] == ["ceiling", "window", "chair", "bed", "sofa", "table"]
+    assert r["miou"] == pytest.approx(sum(r["per_class_freeocc"].values()) / 8)
+    assert r["miou_present"] == pytest.approx((r["per_class"]["wall"] + r["per_class"]["floor"]) / 2)
+    code, out, _ = run(capsys, "eval", pred, gt, "--classes", "wall,floor")  # nothing absent: one mIoU line
+    assert code == 0 and "present only" not in out

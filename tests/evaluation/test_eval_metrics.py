@@ -186,3 +186,11 @@ def test_ten_million_voxels_well_under_a_second():
     t = time.perf_counter()
     evaluate([(pred, gt)], "eval8")
     assert time.perf_counter() - t < 1.0
+
+
+def test_duplicate_class_names_are_rejected():
+    lab = np.array([[[1, 2], [0, 0]]], np.uint8)
+    for names in (["empty", "sofa", "sofa"], ["empty", "tv", "tv-screen"], ["empty", "Wall", "wall "]):
+        with pytest.raises(PanovoccError, match="twice"):
+            Grid(lab, np.full(3, 0.04), 0.08, names).validate("g.npz")
+    Grid(lab, np.full(3, 0.04), 0.08, ["empty", "sofa", "table"]).validate()
