@@ -207,7 +207,8 @@ def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
     from ..io.coverage import write_coverage_csv
     from ..io.sequence import Sequence
     from .coverage import CoverageTracker, frame_schedule, vertical_fov
-    from .show import plot_coverage
+    from ..io.figures import write_png
+    from .show import coverage_figure
 
     check_output_path(cfg.out_dir, folder=True)
     seq = Sequence(cfg.seq)
@@ -231,8 +232,9 @@ def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
            "perspective": np.asarray(persp)}
     with output_folder(cfg.out_dir) as out:  # removed again if writing fails
         write_coverage_csv(out / "coverage.csv", res["frame"], res["panoramic"], res["perspective"])
-        plot_coverage(res["frame"], res["panoramic"], res["perspective"], out / "coverage.png",
-                      title=f"{Path(cfg.seq).name}: {tracker.total} GT occupied voxels", hfov_deg=cfg.hfov_deg)
+        write_png(coverage_figure(res["frame"], res["panoramic"], res["perspective"],
+                                  title=f"{Path(cfg.seq).name}: {tracker.total} GT occupied voxels",
+                                  hfov_deg=cfg.hfov_deg), out / "coverage.png")
         write_config(out / "config.json", cfg)
     res["vfov_deg"] = np.float64(math.degrees(vfov))
     res["total"] = np.int64(tracker.total)
@@ -253,7 +255,8 @@ class ShowConfig:
 
 def run_show(cfg: ShowConfig) -> tuple[int, int]:
     """Render the grids into one PNG; returns its (height, width) in pixels."""
-    from .show import render_panels, save_panels
+    from ..io.figures import write_png
+    from .show import panels_figure, render_panels
 
     if not cfg.grids:
         raise PanovoccError("no grids to show")
@@ -267,8 +270,10 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
     _not_an_input(cfg.out_png, cfg.grids)
     grids = [read_grid(p) for p in cfg.grids]
     images, legend = render_panels(grids, cfg.cut_top, panel_px=max(64, cfg.width_px // len(grids)))
+    fig, size = panels_figure(images, legend, cfg.titles, cfg.width_px)
     with output_file(cfg.out_png):
-        return save_panels(images, legend, cfg.out_png, cfg.titles, cfg.width_px)
+        write_png(fig, cfg.out_png)
+    return size
 
 
 # -------------------------------------------------------------------------------------- convert

@@ -1,8 +1,8 @@
 """Pictures: semantic occupancy grids side by side (``panovocc show``) and coverage curves (Fig. 5).
 
 The voxels are drawn by :mod:`.render_grid` (numpy); matplotlib (Agg) only lays out panels, titles,
-the legend and the plot axes. PNGs are written without a timestamp or software tag, so the same
-input gives the same bytes.
+the legend and the plot axes. This module builds the figures; :func:`panovocc_cli.io.figures.write_png`
+writes them (no timestamp or software tag, so the same input gives the same bytes).
 """
 
 from __future__ import annotations
@@ -15,12 +15,10 @@ import numpy as np
 
 from ..classes import DEFAULT_VOCAB, canonical_name, class_color
 from ..errors import PanovoccError
-from ..io.atomic import atomic_path
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .align import check_same_voxel_size
 from .render_grid import NO_CLASS_COLOR, drawing_box, render_voxels
 
-PNG_METADATA = {"Software": None}
 DPI = 100
 
 
@@ -76,13 +74,14 @@ def _legend_color(name: str) -> tuple[float, float, float]:
     return tuple(c / 255.0 for c in rgb)  # type: ignore[return-value]
 
 
-def save_panels(images: Sequence[np.ndarray], legend: Sequence[str], out_png: str | Path,
-                titles: Sequence[str] | None = None, width_px: int = 1600) -> tuple[int, int]:
-    """Lay rendered panels side by side with titles and a class legend; write a PNG atomically.
+def panels_figure(images: Sequence[np.ndarray], legend: Sequence[str], titles: Sequence[str] | None = None,
+                  width_px: int = 1600):
+    """Lay rendered panels side by side with titles and a class legend.
 
     Returns
     -------
-    (height, width) of the PNG in pixels (width = ``width_px``)
+    fig : matplotlib Figure of ``width_px`` x height pixels at :data:`DPI` (white background)
+    (height, width) : its size in pixels (width = ``width_px``)
     """
     import matplotlib
 
@@ -109,15 +108,15 @@ def save_panels(images: Sequence[np.ndarray], legend: Sequence[str], out_png: st
         handles = [Patch(facecolor=_legend_color(c), edgecolor="0.3", label=c) for c in legend]
         fig.legend(handles=handles, loc="lower center", ncol=ncol, frameon=False, fontsize=10,
                    bbox_to_anchor=(0.5, 0.0), handlelength=1.2, columnspacing=1.2)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, dpi=DPI, format="png", metadata=PNG_METADATA, facecolor="white")
-    plt.close(fig)
-    return height_px, width_px
+    fig.set_facecolor("white")
+    return fig, (height_px, width_px)
 
 
-def plot_coverage(frames: np.ndarray, panoramic: np.ndarray, perspective: np.ndarray, out_png: str | Path,
-                  title: str | None = None, hfov_deg: float = 90.0) -> None:
+def coverage_figure(frames: np.ndarray, panoramic: np.ndarray, perspective: np.ndarray,
+                    title: str | None = None, hfov_deg: float = 90.0):
     """Coverage curves (percent of GT occupied voxels observed so far) against the frame number.
+
+    Returns a matplotlib Figure (6 x 4 inches at :data:`DPI`).
 
     Parameters
     ----------
@@ -151,6 +150,4 @@ def plot_coverage(frames: np.ndarray, panoramic: np.ndarray, perspective: np.nda
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, dpi=DPI, format="png", metadata=PNG_METADATA)
-    plt.close(fig)
+    return fig

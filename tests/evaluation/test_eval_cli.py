@@ -203,7 +203,7 @@ def test_failed_eval_and_coverage_leave_no_folder(capsys, tmp_path, pair, monkey
     write_box_sequence(tmp_path / "seq", 64)
     import panovocc_cli.evaluation.show as show_mod
 
-    monkeypatch.setattr(show_mod, "plot_coverage", disk_full)
+    monkeypatch.setattr(show_mod, "coverage_figure", disk_full)
     code, _, err = run(capsys, "coverage", tmp_path / "seq", gt, "--out", tmp_path / "c1")
     assert code == 2 and "No space left" in err and not (tmp_path / "c1").exists()
     monkeypatch.undo()

@@ -7,7 +7,8 @@ from panovocc_cli.classes import class_color
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.evaluation.metrics import evaluate
 from panovocc_cli.evaluation.render_grid import drawing_box, render_voxels
-from panovocc_cli.evaluation.show import render_panels, save_panels
+from panovocc_cli.evaluation.show import panels_figure, render_panels
+from panovocc_cli.io.figures import write_png
 from panovocc_cli.evaluation.run import write_score_tables
 from panovocc_cli.evaluation.tables import counts_rows, table_rows
 from panovocc_cli.io.tables import csv_text, latex_text, markdown_text
@@ -50,8 +51,9 @@ def test_render_palette_cut_top_and_determinism(tmp_path):
     assert tuple(class_color("ceiling")) not in colours  # cut away
     images, legend = render_panels([g, g], cut_top=1, panel_px=200)
     assert legend == ["floor", "wall", "chair"]
-    a = save_panels(images, legend, tmp_path / "a.png", ["prediction", "ground truth"], width_px=640)
-    save_panels(images, legend, tmp_path / "b.png", ["prediction", "ground truth"], width_px=640)
+    fig, a = panels_figure(images, legend, ["prediction", "ground truth"], width_px=640)
+    write_png(fig, tmp_path / "a.png")
+    write_png(panels_figure(images, legend, ["prediction", "ground truth"], width_px=640)[0], tmp_path / "b.png")
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
     import matplotlib.image as mpimg
 
