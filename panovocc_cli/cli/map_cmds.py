@@ -102,9 +102,14 @@ def map_cmd(
                         checkpoint_every=checkpoint_every, geometry=geo, occupancy=occ, stride=stride, semantic=sem)
         summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
     classed = f", {summary['classed']} with a class" if "classed" in summary else ""
+    seg = f", segmenter {summary['segmenter_ms_per_frame']:.1f} ms" if "segmenter_ms_per_frame" in summary else ""
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
-               f"(update {summary['update_ms_per_frame']:.1f} ms): {summary['occupied']} occupied{classed}, "
+               f"(update {summary['update_ms_per_frame']:.1f} ms{seg}): {summary['occupied']} occupied{classed}, "
                f"{summary['free']} free voxels -> {summary['out']}")
+    empty = summary.get("empty_frames") or []
+    if empty:
+        shown = ", ".join(map(str, empty[:10])) + (", ..." if len(empty) > 10 else "")
+        typer.echo(f"{len(empty)} frame(s) had no valid depth and were mapped as empty observations: {shown}")
 
 
 @app.command()

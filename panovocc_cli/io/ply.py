@@ -252,3 +252,16 @@ def write_ply(path: str | Path, vertex: dict[str, np.ndarray], vertex_types: lis
             f.write(varr.tobytes())
             if farr is not None:
                 f.write(farr.tobytes())
+
+
+def write_ply_points(path: str | Path, points: np.ndarray, colors: np.ndarray,
+                     comment: str = "panovocc occupied voxel centres") -> None:
+    """Atomically write a binary little-endian coloured point cloud.
+
+    points : (n, 3) float, metres, world frame (stored float32); colors : (n, 3) uint8
+    """
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    col = np.asarray(colors, np.uint8).reshape(-1, 3)
+    vertex = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "red": col[:, 0], "green": col[:, 1], "blue": col[:, 2]}
+    types = [("x", "float"), ("y", "float"), ("z", "float"), ("red", "uchar"), ("green", "uchar"), ("blue", "uchar")]
+    write_ply(path, vertex, types, comment=comment)

@@ -13,11 +13,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from ..errors import PanovoccError
+from ..frame import Frame
 from .images import depth_to_uint16, read_depth, read_labels, read_rgb, write_png
 from .poses import read_poses, write_poses
 from .atomic import write_text
@@ -115,16 +116,20 @@ class Sequence:
 
     ``seq.rgb(i)`` (H, W, 3) uint8; ``seq.depth(i)`` (H, W) float32 metres (radial for ERP, z for
     pinhole), 0 = invalid; ``seq.labels(i)`` (H, W) int64 ids into ``seq.meta.class_names`` or None;
-    ``seq.poses`` (N, 4, 4) float64 T_world_cam.
+    ``seq.poses`` (N, 4, 4) float64 T_world_cam. ``seq.frame(i)`` and ``seq.frames()`` give whole
+    :class:`~panovocc_cli.frame.Frame` objects (ERP sequences).
+
+    ``poses`` (N, 4, 4) float64, when given, replaces the pose file (nothing is read from
+    ``poses_path`` or ``SEQ/poses.txt``); ``poses_path`` names where they came from in messages.
     """
 
-    def __init__(self, root: str | Path, poses_path: str | Path | None = None):
+    def __init__(self, root: str | Path, poses_path: str | Path | None = None, poses: np.ndarray | None = None):
         self.root = Path(root)
         if not self.root.is_dir():
             raise PanovoccError("sequence folder not found", self.root)
         self.meta = read_meta(self.root)
         self.poses_path = Path(poses_path) if poses_path is not None else self.root / "poses.txt"
-        self.poses = read_poses(self.poses_path)
+        self.poses = read_poses(self.poses_path) if poses is None else np.asarray(poses, np.float64)
         if len(self.poses) != self.meta.frames:
             raise PanovoccError(f"{len(self.poses)} poses for {self.meta.frames} frames (meta.json)", self.poses_path)
 
@@ -150,6 +155,26 @@ class Sequence:
             raise PanovoccError(f"label id {lab.max()} but meta.json has {len(self.meta.class_names)} class_names",
                                 self.root / "semantic" / f"{frame_stem(i)}.png")
         return lab
+
+    def camera(self):
+        """The sequence's camera model (:mod:`panovocc_cli.geometry.cameras`); ERP only so far."""
+        from ..geometry.cameras import ErpCamera
+
+        if self.meta.camera != "erp":
+            raise PanovoccError(f"camera {self.meta.camera!r}: only ERP sequences can be read as frames",
+                                self.root / "meta.json")
+        return ErpCamera(self.meta.width, self.meta.height)
+
+    def frame(self, i: int, T_world_cam: np.ndarray | None = None) -> Frame:
+        """Frame ``i`` read from the folder: rgb, depth, pose (``seq.poses[i]`` unless given), camera;
+        no logits (a segmenter adds them)."""
+        T = self.poses[i] if T_world_cam is None else T_world_cam
+        return Frame(rgb=self.rgb(i), depth=self.depth(i), T_world_cam=T, camera=self.camera(), index=int(i))
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Frames ``start .. stop - 1`` (default: to the end), read one at a time."""
+        for i in range(start, len(self) if stop is None else stop):
+            yield self.frame(i)
 
 
 def frame_images(seq: str | Path, i: int, rgb: np.ndarray, depth_m: np.ndarray, labels: np.ndarray | None,

@@ -1,4 +1,21 @@
-"""Geometric mapping: the persistent hashed voxel memory, the PSVF kernel, free-space carving, the
-reversible per-frame deltas, export, and the ``map`` / ``revise`` / ``bench`` pipelines.
+"""Mapping: the streaming :class:`Mapper` (frames from memory -> semantic occupancy grid), the reversible
+per-frame delta store (``rpu``), the hashed voxel memory, the PSVF kernel, free-space carving, export,
+and the ``map`` / ``revise`` / ``bench`` run loops (``pipeline``).
 
 numba's threading layer is chosen in ``panovocc_cli/__init__.py`` (OpenMP first, never TBB first)."""
+
+from __future__ import annotations
+
+from ..frame import Frame
+
+__all__ = ["Frame", "Mapper", "MapperConfig"]
+
+
+def __getattr__(name: str):
+    # the Mapper pulls in numba kernels: imported on first use, so `import panovocc_cli.mapping.params`
+    # (the CLI's --help) stays light
+    if name in ("Mapper", "MapperConfig"):
+        from . import mapper
+
+        return getattr(mapper, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,4 +1,4 @@
-"""From memory to outputs: the occupancy decision, the three-state grid, and a coloured PLY of occupied voxels.
+"""From memory to outputs: the occupancy decision, the (labelled) grid, and the colours of occupied voxels.
 
 Two decision rules (``OccupancyParams.rule``; defaults and reasons: docs/mapping.md):
 
@@ -15,13 +15,12 @@ score g is exported either way (the semantic consolidation uses it).
 
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
-from ..io.ply import write_ply
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .memory import FIXED_SCALE
 from .params import OccupancyParams
@@ -94,21 +93,81 @@ def height_colors(z: np.ndarray) -> np.ndarray:
     return np.rint(stops[k] * (1 - f) + stops[k + 1] * f).astype(np.uint8)
 
 
-def write_ply_points(path: str | Path, points: np.ndarray, colors: np.ndarray) -> None:
-    """Atomically write a binary little-endian PLY point cloud.
-
-    points : (n, 3) float, metres, world frame (stored float32); colors : (n, 3) uint8
-    """
-    pts = np.asarray(points, np.float32).reshape(-1, 3)
-    col = np.asarray(colors, np.uint8).reshape(-1, 3)
-    vertex = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "red": col[:, 0], "green": col[:, 1], "blue": col[:, 2]}
-    types = [("x", "float"), ("y", "float"), ("z", "float"), ("red", "uchar"), ("green", "uchar"), ("blue", "uchar")]
-    write_ply(path, vertex, types, comment="panovocc occupied voxel centres")
-
-
 def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean: np.ndarray | None = None):
     """Centres (n, 3) float64 metres of occupied voxels and their colours (mean RGB if given, else height)."""
     centres = index_to_center(unpack_keys(occ_keys), voxel_size)
     if rgb_mean is not None:
         return centres, np.clip(np.rint(rgb_mean), 0, 255).astype(np.uint8)
     return centres, height_colors(centres[:, 2])
+
+
+@dataclass
+class MapExport:
+    """What the memory says at one moment: the grid and, for the point cloud, its occupied voxels.
+
+    grid : Grid, labels 1..C a vocabulary class (or 254 without class), 0 free, 255 unobserved;
+        ``class_names = ["empty"] + vocabulary`` (``["empty"]`` for a geometry-only map)
+    occupied_keys : (m,) int64 sorted keys of the occupied voxels
+    labels : (m,) int64 vocabulary index per occupied voxel (-1 = no class), or None without semantics
+    channels : dict name -> (m, width) int64, the memory channels at the occupied voxels
+    """
+
+    grid: Grid
+    occupied_keys: np.ndarray
+    labels: np.ndarray | None
+    channels: dict
+
+    def summary(self) -> dict:
+        """Counts: occupied and free voxels, and (with semantics) occupied voxels with a class."""
+        out = {"occupied": int(len(self.occupied_keys)), "free": int((self.grid.labels == EMPTY).sum())}
+        if self.labels is not None:
+            out["classed"] = int((self.labels >= 0).sum())
+        return out
+
+
+def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
+                  vocab=(), semantic=None) -> MapExport:
+    """The labelled grid of a memory's non-zero voxels.
+
+    The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
+    semantic channels, each occupied voxel is labelled by :func:`semantic.label_occupied` (GSC or raw
+    argmax, bounded nearest-evidence transfer), -1 -> 254.
+
+    Parameters
+    ----------
+    keys : (n,) int64 sorted voxel keys; channels : dict name -> (n, width) int64 (``VoxelMemory.nonzero``)
+    voxel_size : float, metres
+    occupancy : OccupancyParams
+    vocab : sequence of str, the vocabulary (empty = geometry only)
+    semantic : object with ``use_gsc`` and ``gsc`` (``MapperConfig``), needed with a vocabulary
+    """
+    from .semantic import apply_labels, label_occupied
+
+    grid, occ_keys = memory_to_grid(keys, channels, voxel_size, occupancy)
+    pos = np.searchsorted(keys, occ_keys)
+    sub = {k: v[pos] for k, v in channels.items()}
+    labels = None
+    if len(vocab) and "E" in channels:
+        _, _, g = classify(channels["A"], channels["N"], channels["F"], channels["O"], occupancy)
+        labels = label_occupied(occ_keys, {k: sub[k] for k in ("E", "S", "rgb_sum", "normal_sum", "count")},
+                                g[pos], semantic)
+        grid = apply_labels(grid, occ_keys, labels, vocab)
+    return MapExport(grid, occ_keys, labels, sub)
+
+
+def point_colors(ex: MapExport, voxel_size: float, color: str, vocab=()) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (m, 3) float64 metres (world) and colours (m, 3) uint8 of the occupied voxels.
+
+    color : ``class`` (class colours, grey for no class), ``rgb`` (mean pixel colour, grey where no pixel
+        fell in the voxel) or ``height``; ``class`` / ``rgb`` fall back to height without semantic channels.
+    """
+    from .semantic import UNCLASSED_COLOR, class_colors
+
+    pts, cols = occupied_points_and_colors(ex.occupied_keys, voxel_size, None)
+    if color == "class" and ex.labels is not None:
+        cols = class_colors(ex.labels, vocab)
+    elif color == "rgb" and "rgb_sum" in ex.channels:
+        cnt = ex.channels["count"][:, :1]
+        rgb = np.clip(np.rint(ex.channels["rgb_sum"] / np.maximum(cnt, 1)), 0, 255).astype(np.uint8)
+        cols = np.where(cnt > 0, rgb, np.array(UNCLASSED_COLOR, np.uint8))
+    return pts, cols

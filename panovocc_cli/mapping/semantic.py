@@ -168,22 +168,6 @@ def semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray, T_wor
     return quantize_semantic_delta(keys, ch)
 
 
-def semantic_frame(frame, segmenter, vocab: Seq[str], voxel_size: float, weights: EvidenceWeights,
-                   min_range: float, max_range: float, rays: np.ndarray | None = None) -> Delta:
-    """One frame's quantised semantic delta: the segmenter's logits, then :func:`semantic_delta`.
-
-    The segmenter sees the frame's ground-truth labels and the sequence's class names (the simulated
-    segmenter needs them; real ones ignore them).
-    """
-    from ..semantics.segmenter import FrameContext
-
-    seq = frame.seq
-    rgb = frame.rgb
-    ctx = FrameContext(seq.labels(frame.index), seq.meta.class_names)
-    logits = segmenter.logits(rgb, list(vocab), frame.index, ctx)
-    return semantic_delta(frame.depth, rgb, logits, frame.T_world_cam, voxel_size, weights, min_range, max_range, rays)
-
-
 def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params: SemanticParams) -> np.ndarray:
     """Vocabulary index of each occupied voxel, or -1 (no class; exported as 254).
 

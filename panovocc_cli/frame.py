@@ -1,0 +1,63 @@
+"""One RGB-D frame held in memory: what a sequence reader yields and what the mapper integrates.
+
+A :class:`Frame` is data, not a file handle: readers (``io.sequence.read_frames``), renderers or a SLAM
+front end build it, and nothing downstream reaches back to disk for it. It lives at the package root,
+next to :mod:`panovocc_cli.grid`, because both the I/O layer (which produces frames) and the mapping
+layer (which consumes them) use it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PanovoccError
+from .geometry.cameras import ErpCamera
+
+
+@dataclass
+class Frame:
+    """One frame.
+
+    Attributes
+    ----------
+    rgb : (H, W, 3) uint8, the colours
+    depth : (H, W) float32, metres, radial (distance along the pixel's ray), 0 = invalid
+    T_world_cam : (4, 4) float64, camera-to-world pose (OpenCV camera axes, world +Z up)
+    camera : ErpCamera, the camera model (its ``shape`` is (H, W))
+    logits : (H, W, C) float32 or None, per-pixel class scores over the mapper's vocabulary (C words)
+    index : int or None, the frame's identity (its position in the sequence); the mapper uses it as the
+        frame id when given
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    T_world_cam: np.ndarray
+    camera: ErpCamera
+    logits: np.ndarray | None = None
+    index: int | None = None
+
+    def __post_init__(self):
+        self.T_world_cam = np.asarray(self.T_world_cam, np.float64)
+
+    def check(self) -> "Frame":
+        """Validate shapes, dtypes and the pose; raise :class:`PanovoccError` naming what is wrong."""
+        what = f"frame {self.index}" if self.index is not None else "frame"
+        if not isinstance(self.camera, ErpCamera):
+            raise PanovoccError(f"{what}: camera {self.camera!r} is not supported (ERP only)")
+        hw = self.camera.shape
+        d = np.asarray(self.depth)
+        if d.shape != hw or d.dtype != np.float32:
+            raise PanovoccError(f"{what}: depth is {d.dtype} {d.shape}, expected float32 {hw}")
+        c = np.asarray(self.rgb)
+        if c.shape != hw + (3,) or c.dtype != np.uint8:
+            raise PanovoccError(f"{what}: rgb is {c.dtype} {c.shape}, expected uint8 {hw + (3,)}")
+        T = self.T_world_cam
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise PanovoccError(f"{what}: T_world_cam must be a finite (4, 4) matrix, got shape {T.shape}")
+        if self.logits is not None:
+            lg = np.asarray(self.logits)
+            if lg.ndim != 3 or lg.shape[:2] != hw:
+                raise PanovoccError(f"{what}: logits have shape {lg.shape}, expected {hw + ('C',)}")
+        return self

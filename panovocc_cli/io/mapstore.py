@@ -1,0 +1,150 @@
+"""A map folder's files: the per-frame delta files, the memory file and the map's ``config.json``.
+
+Layout (docs/mapping.md, "Output folder")::
+
+    OUT/config.json        the resolved map configuration (JSON object)
+    OUT/memory.npz         the memory: non-zero voxels in key order, integer channels, frames_done, poses
+    OUT/deltas/NNNNNN.npz  one frame's sparse delta: keys, integer channels, the pose it was computed under
+    OUT/poses.txt          the poses of the retained frames (NICE-SLAM form, :mod:`.poses`)
+
+This module knows the bytes only; the meaning (a :class:`mapping.memory.Delta`, the reversible update)
+lives in :mod:`panovocc_cli.mapping.rpu`. Every write is atomic and deterministic (fixed zip dates,
+sorted entries), so equal contents give equal files.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import PanovoccError
+from .atomic import write_text
+from .npz import write_npz
+from .sequence import frame_stem
+
+CONFIG_NAME = "config.json"
+MEMORY_NAME = "memory.npz"
+DELTAS_DIR = "deltas"
+STAGED_SUFFIX = ".new"  # a revised delta waiting for the memory file that commits it
+DELTA_COMPRESSLEVEL = 1  # zlib level of delta files (docs/mapping.md, "Delta store size")
+
+
+def delta_path(folder: str | Path, frame_id: int) -> Path:
+    """``folder/deltas/NNNNNN.npz`` of frame ``frame_id``."""
+    return Path(folder) / DELTAS_DIR / f"{frame_stem(int(frame_id))}.npz"
+
+
+def staged_path(path: Path) -> Path:
+    """The staging name of a delta file (``NNNNNN.npz.new``)."""
+    return path.with_name(path.name + STAGED_SUFFIX)
+
+
+def _compact(a: np.ndarray) -> np.ndarray:
+    """Smallest signed integer dtype holding ``a`` (deterministic; read back as int64)."""
+    if a.size == 0:
+        return a.astype(np.int8)
+    lo, hi = int(a.min()), int(a.max())
+    for dt in (np.int8, np.int16, np.int32):
+        if np.iinfo(dt).min <= lo and hi <= np.iinfo(dt).max:
+            return a.astype(dt)
+    return a
+
+
+def write_delta(path: str | Path, keys: np.ndarray, channels: Mapping[str, np.ndarray],
+                T_world_cam: np.ndarray) -> None:
+    """Atomically write one frame's delta.
+
+    Parameters
+    ----------
+    keys : (n,) int64, sorted unique voxel keys (``geometry.lattice.pack_keys``); stored as differences
+        (first key, then gaps), which compress to almost nothing
+    channels : dict name -> (n, width) int64; each stored in the smallest signed integer type that holds it
+    T_world_cam : (4, 4) float64, the pose the delta was computed under
+    """
+    arrays = {"keys_diff": np.diff(np.asarray(keys, np.int64), prepend=np.int64(0)),
+              "T_world_cam": np.asarray(T_world_cam, np.float64)}
+    for name, arr in channels.items():
+        arrays[f"ch_{name}"] = _compact(np.asarray(arr))
+    write_npz(path, arrays, compresslevel=DELTA_COMPRESSLEVEL)
+
+
+def read_delta(path: str | Path) -> tuple[np.ndarray, dict, np.ndarray]:
+    """Read a delta file: keys (n,) int64, channels dict name -> (n, width) int64, T_world_cam (4, 4)."""
+    path = Path(path)
+    if not path.is_file():
+        raise PanovoccError("delta file missing (the map folder is incomplete)", path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            keys = np.cumsum(z["keys_diff"].astype(np.int64))
+            ch = {k[3:]: z[k].astype(np.int64).reshape(len(keys), -1) for k in z.files if k.startswith("ch_")}
+            T = np.asarray(z["T_world_cam"], np.float64)
+    except Exception as e:  # noqa: BLE001 - any unreadable file is the same failure
+        raise PanovoccError(f"cannot read delta ({type(e).__name__}: {e})", path) from None
+    if T.shape != (4, 4):
+        raise PanovoccError(f"delta pose has shape {T.shape}, expected (4, 4)", path)
+    return keys, ch, T
+
+
+def write_memory(folder: str | Path, arrays: Mapping[str, np.ndarray], frames_done: int, poses: np.ndarray,
+                 frame_ids: np.ndarray | None = None) -> None:
+    """Atomically write ``folder/memory.npz``.
+
+    Parameters
+    ----------
+    arrays : the memory's canonical arrays (``VoxelMemory.to_arrays``)
+    frames_done : int, frames the memory holds (a map run's checkpoint: frames 0..frames_done-1)
+    poses : (n, 4, 4) float64, the poses the retained deltas were computed under, in frame-id order
+    frame_ids : (n,) int64 or None; stored only when the ids are not ``0..n-1`` (a mapper that removed
+        frames or was fed its own ids), so a plain map run's file keeps its historical bytes
+    """
+    out = dict(arrays)
+    out["frames_done"] = np.int64(frames_done)
+    out["poses"] = np.asarray(poses, np.float64).reshape(-1, 4, 4)
+    if frame_ids is not None:
+        out["frame_ids"] = np.asarray(frame_ids, np.int64)
+    write_npz(Path(folder) / MEMORY_NAME, out)
+
+
+def read_memory(folder: str | Path) -> tuple[dict, int, np.ndarray, np.ndarray | None]:
+    """Read ``folder/memory.npz``: (memory arrays, frames_done, poses (n, 4, 4) float64, frame_ids or None)."""
+    path = Path(folder) / MEMORY_NAME
+    if not path.is_file():
+        raise PanovoccError("memory.npz not found (not a panovocc map folder, or the run stopped before "
+                            "its first checkpoint)", path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        frames_done = int(arrays.pop("frames_done"))
+        poses = np.asarray(arrays.pop("poses"), np.float64)
+        ids = arrays.pop("frame_ids", None)
+    except PanovoccError:
+        raise
+    except Exception as e:  # noqa: BLE001
+        raise PanovoccError(f"cannot read memory ({type(e).__name__}: {e})", path) from None
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise PanovoccError(f"poses have shape {poses.shape}, expected (n, 4, 4)", path)
+    if ids is not None and (ids.shape != (len(poses),) or len(np.unique(ids)) != len(ids)):
+        raise PanovoccError(f"frame_ids {ids.shape} do not match {len(poses)} poses", path)
+    return arrays, frames_done, poses, None if ids is None else np.asarray(ids, np.int64)
+
+
+def read_map_config(folder: str | Path) -> dict:
+    """``folder/config.json`` as a dict."""
+    path = Path(folder) / CONFIG_NAME
+    if not path.is_file():
+        raise PanovoccError("config.json not found (not a panovocc map folder)", path)
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise PanovoccError(f"invalid JSON ({type(e).__name__}: {e})", path) from None
+    if not isinstance(d, dict):
+        raise PanovoccError("expected a JSON object", path)
+    return d
+
+
+def write_map_config(folder: str | Path, config: dict) -> None:
+    """Atomically write ``folder/config.json`` (indented JSON, key order kept)."""
+    write_text(Path(folder) / CONFIG_NAME, json.dumps(config, indent=2) + "\n")

@@ -1,0 +1,337 @@
+"""The streaming mapper: frames from memory in, a semantic occupancy grid out, poses revisable at any time.
+
+::
+
+    from panovocc_cli.mapping import Mapper, MapperConfig, Frame
+
+    mapper = Mapper(MapperConfig(vocab=["wall", "floor"]))
+    for frame in frames:                       # Frame(rgb, depth, T_world_cam, camera, logits=...)
+        mapper.integrate(frame)
+    mapper.revise(3, T_new)                    # frame 3's pose corrected (e.g. by a loop closure)
+    grid = mapper.prediction()                 # panovocc_cli.grid.Grid
+    mapper.save("out/")                        # memory.npz, deltas/, config.json, poses.txt
+    mapper = Mapper.load("out/")
+
+The mapper never opens an input file: a frame's arrays come in a :class:`~panovocc_cli.frame.Frame`, and
+a segmenter, if any, runs before (its logits travel in the frame). Each frame's delta is the geometry
+contributor's (:func:`.contributors.geometry_delta`: PSVF support, free space) merged with, when the
+frame carries logits and the configuration a vocabulary, the semantic one (:func:`.semantic.semantic_delta`).
+The deltas are kept by the reversible persistent update (:mod:`.rpu`), so the memory is always their exact
+integer sum.
+
+Revising a frame recomputes its delta from the frame's data under the new pose. Where that data comes
+from is the caller's choice:
+
+* ``frame_source=None`` (default): ``integrate`` keeps a reference to each Frame's arrays (not a copy).
+  At 1024x512 that is 3.5 MB per frame (depth 2 MB, rgb 1.5 MB) plus 2 MB per class of logits (25 MB
+  with 12 classes): fine for a few hundred frames or short windows, not for a 2,000-frame sequence;
+* ``frame_source=callable(frame_id) -> Frame``: nothing is kept; ``revise`` asks for the frame again
+  (its pose is ignored). The map commands pass a reader of the sequence folder that reruns the (seeded,
+  deterministic) segmenter, so a revision recomputes exactly what mapping computed.
+
+Deltas themselves stay in RAM (``folder=None``) or go to ``folder/deltas/`` as they are made (sizes:
+docs/mapping.md, "Delta store size").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..errors import PanovoccError
+from ..frame import Frame
+from ..grid import Grid
+from ..io import mapstore
+from ..io.poses import write_poses
+from ..semantics.evidence import EvidenceWeights
+from ..semantics.gsc import GSCParams
+from .contributors import geometry_delta
+from .export import MapExport, export_memory
+from .memory import GEOMETRY_CHANNELS, ChannelSpec, Delta, VoxelMemory, merge_deltas
+from .params import GeometryParams, OccupancyParams
+from .rpu import DeltaStore, ReversibleMemory
+from .semantic import mapper_gsc_params, semantic_channels, semantic_delta
+
+FORMAT_VERSION = 3  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule
+# (2: semantic section; a version-1 config is a geometry-only map)
+KERNELS = ("psvf", "point")
+RULES = ("frequency", "score")
+RADIAL = ("fit", "model")
+
+
+@dataclass
+class MapperConfig:
+    """Everything the mapper computes with: geometry, occupancy and semantic fusion parameters.
+
+    geometry : GeometryParams (``stride`` is the resolved pixel stride; the map command sets
+        ``max(1, W // 256)``, 4 at 1024)
+    occupancy : OccupancyParams, the decision rule
+    vocab : list of str, the canonical class names of the logits frames carry (C of them); empty =
+        geometry only (logits are then ignored and occupied voxels export as 254)
+    use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
+    gsc : GSCParams of the labelled export; weights : EvidenceWeights of the semantic evidence
+    """
+
+    geometry: GeometryParams = field(default_factory=GeometryParams)
+    occupancy: OccupancyParams = field(default_factory=OccupancyParams)
+    vocab: list = field(default_factory=list)
+    use_gsc: bool = True
+    gsc: GSCParams = field(default_factory=mapper_gsc_params)
+    weights: EvidenceWeights = field(default_factory=EvidenceWeights)
+
+    def check(self) -> "MapperConfig":
+        """Validate the parameter ranges; raise :class:`PanovoccError` naming the option."""
+        g = self.geometry
+        if not (np.isfinite(g.voxel_size) and g.voxel_size > 0):
+            raise PanovoccError(f"--voxel-size must be positive, got {g.voxel_size}")
+        if int(g.stride) < 1:
+            raise PanovoccError(f"stride must be >= 1, got {g.stride}")
+        if g.kernel not in KERNELS:
+            raise PanovoccError(f"--kernel must be psvf or point, got {g.kernel!r}")
+        if self.occupancy.rule not in RULES:
+            raise PanovoccError(f"--rule must be frequency or score, got {self.occupancy.rule!r}")
+        if g.radial not in RADIAL:
+            raise PanovoccError(f"radial must be fit or model, got {g.radial!r}")
+        if not all(isinstance(w, str) and w for w in self.vocab) or len(set(self.vocab)) != len(self.vocab):
+            raise PanovoccError(f"vocabulary must be distinct class names, got {self.vocab!r}")
+        return self
+
+    def channels(self) -> tuple[ChannelSpec, ...]:
+        """Memory channels: A N F O, then E S rgb_sum normal_sum count with a vocabulary."""
+        return GEOMETRY_CHANNELS + (semantic_channels(len(self.vocab)) if self.vocab else ())
+
+    def to_json(self) -> dict:
+        """The map folder's ``config.json`` sections of the mapper (the map command adds its run fields)."""
+        return {"geometry": dataclasses.asdict(self.geometry), "occupancy": dataclasses.asdict(self.occupancy),
+                "semantic": {"vocab": list(self.vocab), "use_gsc": self.use_gsc,
+                             "gsc": dataclasses.asdict(self.gsc), "weights": dataclasses.asdict(self.weights)},
+                "format_version": FORMAT_VERSION}
+
+    @classmethod
+    def from_json(cls, d: dict, where=None) -> "MapperConfig":
+        """From a map folder's ``config.json`` (a mapper's or a map run's; extra keys are ignored)."""
+        try:
+            version = int(d.get("format_version", 1))
+            if version > FORMAT_VERSION:
+                raise PanovoccError(f"format_version {version} is newer than this panovocc reads ({FORMAT_VERSION})",
+                                    where)
+            g = GeometryParams(**d["geometry"])
+            o = OccupancyParams(**d["occupancy"])
+            s = d.get("semantic") or {}
+            vocab = [] if s.get("segmenter") == "none" else list(s.get("vocab") or [])
+            gsc = dataclasses.replace(mapper_gsc_params(), **s.get("gsc", {}))
+            weights = EvidenceWeights(**s.get("weights", {}))
+            return cls(geometry=g, occupancy=o, vocab=vocab, use_gsc=bool(s.get("use_gsc", True)), gsc=gsc,
+                       weights=weights).check()
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
+
+
+def has_valid_depth(depth: np.ndarray, geometry: GeometryParams) -> bool:
+    """Whether any pixel's depth lies in ``[min_range, max_range]`` (metres)."""
+    d = np.asarray(depth)
+    return bool(np.any((d >= geometry.min_range) & (d <= geometry.max_range)))
+
+
+def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = None) -> Delta:
+    """One frame's delta: geometry, merged with semantics when the frame has logits and ``config`` a vocabulary.
+
+    A frame with no depth in ``[min_range, max_range]`` (a dropped sensor frame) is an empty observation:
+    an empty delta. ``rays`` : (H, W, 3) float64 unit rays of the frame's camera (cached by the caller).
+    """
+    g = config.geometry
+    if not has_valid_depth(frame.depth, g):
+        return Delta(np.zeros(0, np.int64), {})
+    parts = [geometry_delta(frame.depth, frame.T_world_cam, g)]
+    if config.vocab and frame.logits is not None:
+        if rays is None:
+            rays = frame.camera.rays()
+        parts.append(semantic_delta(frame.depth, frame.rgb, frame.logits, frame.T_world_cam, g.voxel_size,
+                                    config.weights, g.min_range, g.max_range, rays))
+    return merge_deltas(parts)
+
+
+def _check_pose(T, what: str) -> np.ndarray:
+    T = np.asarray(T, np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise PanovoccError(f"{what}: T_world_cam must be a finite (4, 4) matrix, got shape {T.shape}")
+    return T
+
+
+class Mapper:
+    """One map: integrate frames, revise or remove them, read the grid, save and reload.
+
+    Parameters
+    ----------
+    config : MapperConfig
+    folder : path or None
+        Where the per-frame deltas go as they are made (``folder/deltas/``) and where :meth:`save` writes
+        by default; None keeps them in RAM until :meth:`save`. A folder that already holds a map is
+        refused (reopen it with :meth:`load`).
+    frame_source : callable ``frame_id -> Frame`` or None
+        Where :meth:`revise` gets a frame's data again; None keeps each integrated Frame (module docstring).
+        A public attribute: it may be set after :meth:`load`.
+    """
+
+    def __init__(self, config: MapperConfig, *, folder: str | Path | None = None,
+                 frame_source: Callable[[int], Frame] | None = None, _rpu: ReversibleMemory | None = None):
+        self.config = config.check()
+        if _rpu is None:
+            if folder is not None and (Path(folder) / mapstore.MEMORY_NAME).exists():
+                raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
+            _rpu = ReversibleMemory(VoxelMemory(config.geometry.voxel_size, config.channels()), DeltaStore(folder))
+        self._rpu = _rpu
+        self.frame_source = frame_source
+        self._frames: dict[int, Frame] = {}
+        self._rays: dict = {}
+        ids = self._rpu.store.ids()
+        self._next_id = ids[-1] + 1 if ids else 0
+        self.empty_frames: list[int] = []  # ids integrated here whose depth had no valid pixel
+
+    # -- state -----------------------------------------------------------------------------------
+    @property
+    def memory(self) -> VoxelMemory:
+        """The voxel memory (the exact sum of the kept deltas)."""
+        return self._rpu.memory
+
+    @property
+    def frame_ids(self) -> list[int]:
+        """Ids of the frames the map holds, ascending."""
+        return self._rpu.store.ids()
+
+    @property
+    def folder(self) -> Path | None:
+        """The folder the deltas live in (None: in RAM)."""
+        return self._rpu.store.folder
+
+    def pose(self, frame_id: int) -> np.ndarray:
+        """(4, 4) float64 T_world_cam the frame's kept delta was computed under."""
+        if frame_id not in self._rpu.store:
+            raise PanovoccError(f"frame {frame_id} is not in the map")
+        return self._rpu.store.poses[int(frame_id)].copy()
+
+    def __len__(self) -> int:
+        return len(self._rpu.store)
+
+    # -- frames ----------------------------------------------------------------------------------
+    def _delta(self, frame: Frame) -> Delta:
+        frame.check()
+        if self.config.vocab and frame.logits is not None and np.shape(frame.logits)[2] != len(self.config.vocab):
+            raise PanovoccError(f"frame {frame.index}: logits have {np.shape(frame.logits)[2]} classes, the "
+                                f"vocabulary {len(self.config.vocab)}")
+        rays = None
+        if self.config.vocab and frame.logits is not None:
+            rays = self._rays.get(frame.camera)
+            if rays is None:
+                rays = self._rays[frame.camera] = frame.camera.rays()
+        return frame_delta(frame, self.config, rays)
+
+    def integrate(self, frame: Frame) -> int:
+        """Add a frame; returns its id (``frame.index`` when set, else the next unused id).
+
+        A frame whose depth has no pixel in ``[min_range, max_range]`` is integrated as an empty
+        observation (it changes nothing; its id is listed in :attr:`empty_frames`).
+        """
+        fid = int(frame.index) if frame.index is not None else self._next_id
+        if fid < 0:
+            raise PanovoccError(f"frame id must be >= 0, got {fid}")
+        if fid in self._rpu.store:
+            raise PanovoccError(f"frame {fid} is already in the map (revise or remove it)")
+        delta = self._delta(frame)
+        self._rpu.keep(fid, delta, frame.T_world_cam)
+        if len(delta) == 0 and not has_valid_depth(frame.depth, self.config.geometry):
+            self.empty_frames.append(fid)
+        if self.frame_source is None:
+            self._frames[fid] = frame
+        self._next_id = max(self._next_id, fid + 1)
+        return fid
+
+    def revise(self, frame_id: int, T_world_cam: np.ndarray) -> bool:
+        """Move frame ``frame_id`` to pose ``T_world_cam`` (4, 4): its delta is recomputed and swapped in.
+
+        Returns False (nothing done) when the pose is unchanged. Exact: the memory then equals that of a
+        map that had integrated the frame under this pose from the start.
+        """
+        fid = int(frame_id)
+        T = _check_pose(T_world_cam, f"frame {fid}")
+        if np.array_equal(T, self.pose(fid)):
+            return False
+        frame = self._frames.get(fid)
+        if frame is None:
+            if self.frame_source is None:
+                raise PanovoccError(f"frame {fid}: its data is not kept (a loaded map needs a frame_source to revise)")
+            frame = self.frame_source(fid)
+        frame = dataclasses.replace(frame, T_world_cam=T)
+        self._rpu.revise(fid, self._delta(frame), T)
+        if fid in self._frames:
+            self._frames[fid] = frame
+        return True
+
+    def remove(self, frame_id: int) -> None:
+        """Take frame ``frame_id`` out: the memory equals that of a map that never had it."""
+        self._rpu.remove(int(frame_id))
+        self._frames.pop(int(frame_id), None)
+        if int(frame_id) in self.empty_frames:
+            self.empty_frames.remove(int(frame_id))
+
+    # -- outputs ---------------------------------------------------------------------------------
+    def export(self) -> MapExport:
+        """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory."""
+        keys, ch = self.memory.nonzero()
+        return export_memory(keys, ch, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
+                             self.config)
+
+    def prediction(self) -> Grid:
+        """The semantic occupancy grid: 1..C vocabulary classes (254 occupied without class), 0 free,
+        255 unobserved; ``class_names = ["empty"] + vocab``."""
+        return self.export().grid
+
+    # -- persistence -----------------------------------------------------------------------------
+    def save(self, folder: str | Path | None = None) -> Path:
+        """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
+
+        Writes the deltas not yet there, then ``memory.npz`` (the commit point), then ``config.json``
+        (unless the folder's config already holds this mapper's parameters, e.g. a map run's) and
+        ``poses.txt`` (the kept frames' poses in id order). Deltas kept in RAM move to ``folder``.
+        """
+        folder = Path(folder) if folder is not None else self.folder
+        if folder is None:
+            raise PanovoccError("Mapper.save needs a folder (this mapper keeps its deltas in RAM)")
+        self._rpu.save(folder)
+        cfg_path = folder / mapstore.CONFIG_NAME
+        try:
+            same = cfg_path.is_file() and MapperConfig.from_json(mapstore.read_map_config(folder)) == self.config
+        except PanovoccError:
+            same = False
+        if not same:
+            mapstore.write_map_config(folder, self.config.to_json())
+        write_poses(folder / "poses.txt", self._rpu.poses()[1])
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | Path, frame_source: Callable[[int], Frame] | None = None) -> "Mapper":
+        """Reopen a saved map (a :meth:`save` folder or a ``panovocc map`` output). Its deltas stay in
+        ``folder``; revising a frame needs ``frame_source``."""
+        folder = Path(folder)
+        config = MapperConfig.from_json(mapstore.read_map_config(folder), folder / mapstore.CONFIG_NAME)
+        rpu = ReversibleMemory.load(folder)
+        specs = tuple(rpu.memory.specs)
+        if specs != config.channels() or rpu.memory.voxel_size != config.geometry.voxel_size:
+            rpu.close()
+            raise PanovoccError(f"memory channels {[s.name for s in specs]} (voxel {rpu.memory.voxel_size} m) do not "
+                                "match config.json", folder / mapstore.MEMORY_NAME)
+        return cls(config, frame_source=frame_source, _rpu=rpu)
+
+    def close(self) -> None:
+        """Finish pending delta writes and stop the writer thread (the mapper stays usable)."""
+        self._rpu.close()
+
+    def __enter__(self) -> "Mapper":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,262 @@
+"""The streaming Mapper: exactly `panovocc map` frame by frame; revise during a run, remove and save/load
+are exact (bit-identical memory); an empty depth frame is an empty observation."""
+
+import numpy as np
+import pytest
+from semantics_helpers import CLASS_NAMES, pose, render_room
+
+from panovocc_cli.errors import PanovoccError
+from panovocc_cli.geometry.cameras import ErpCamera
+from panovocc_cli.io import mapstore
+from panovocc_cli.io.grid import read_grid
+from panovocc_cli.io.poses import write_poses
+from panovocc_cli.io.sequence import Sequence, SequenceMeta, write_frame, write_meta, write_sequence_poses
+from panovocc_cli.mapping import Frame, Mapper, MapperConfig
+from panovocc_cli.mapping.pipeline import MapConfig, load_config, run_map, run_revise, sequence_frames
+
+W = 64
+N = 5
+
+
+def _poses(n):
+    return np.stack([pose((0.8 * np.sin(2 * np.pi * i / n), 1.0 * np.cos(2 * np.pi * i / n), 1.4), yaw=0.9 * i)
+                     for i in range(n)])
+
+
+def _moved(T, seed):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0, 0.1)
+    c, s = np.cos(a), np.sin(a)
+    out = T.copy()
+    out[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ out[:3, :3]
+    out[:3, 3] += rng.normal(0, 0.15, 3)
+    return out
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tmp_path_factory):
+    """The furnished, labelled room of semantics_helpers, 64x32, 5 frames."""
+    seq = tmp_path_factory.mktemp("mapperseq") / "room"
+    poses = _poses(N)
+    for i, T in enumerate(poses):
+        lab, d, rgb = render_room(W, T)
+        write_frame(seq, i, rgb, d, lab)
+    write_meta(seq, SequenceMeta(width=W, height=W // 2, frames=N, class_names=CLASS_NAMES))
+    write_sequence_poses(seq, poses)
+    return seq
+
+
+@pytest.fixture(scope="module")
+def mapped(seq_dir, tmp_path_factory):
+    """`panovocc map` (simulated segmenter, 12 classes) of the room: (output folder, its frame source)."""
+    out = tmp_path_factory.mktemp("mapped") / "m"
+    run_map(MapConfig(seq=str(seq_dir), out=str(out), checkpoint_every=0), progress=False)
+    cfg = load_config(out)
+    return out, cfg, sequence_frames(cfg, Sequence(seq_dir))
+
+
+def _arrays(mapper):
+    return mapper.memory.to_arrays()
+
+
+def _assert_same_memory(a, b):
+    x, y = _arrays(a), _arrays(b)
+    assert sorted(x) == sorted(y)
+    for k in x:
+        np.testing.assert_array_equal(x[k], y[k], err_msg=k)
+
+
+def test_frame_by_frame_equals_map_command(mapped, tmp_path):
+    out, cfg, frames = mapped
+    mapper = Mapper(cfg.mapper_config())
+    assert mapper.config.vocab and len(mapper.config.vocab) == 12
+    for i in range(N):
+        f = frames(i)
+        assert f.logits.shape == (W // 2, W, 12) and f.camera == ErpCamera(W, W // 2)
+        assert mapper.integrate(f) == i
+    g = mapper.prediction()
+    ref = read_grid(out / "prediction.npz")
+    np.testing.assert_array_equal(g.labels, ref.labels)
+    assert g.class_names == ref.class_names and np.array_equal(g.origin, ref.origin)
+    assert len(set(np.unique(g.labels).tolist()) - {0, 254, 255}) > 1  # classes, not only geometry
+    saved = mapper.save(tmp_path / "api")
+    for name in ("memory.npz", "poses.txt"):
+        assert (saved / name).read_bytes() == (out / name).read_bytes(), name
+    for i in range(N):
+        p = mapstore.delta_path(saved, i)
+        assert p.read_bytes() == mapstore.delta_path(out, i).read_bytes()
+    # in a folder from the start (deltas written as they are made): the same bytes
+    with Mapper(cfg.mapper_config(), folder=tmp_path / "f", frame_source=frames) as m2:
+        for i in range(N):
+            m2.integrate(frames(i))
+        m2.save()
+    assert (tmp_path / "f" / "memory.npz").read_bytes() == (out / "memory.npz").read_bytes()
+
+
+def test_revise_during_run_equals_final_pose_from_start(mapped, tmp_path):
+    _, cfg, frames = mapped
+    true = np.stack([frames(i).T_world_cam for i in range(N)])
+
+    def frame(i, T):
+        f = frames(i)
+        f.T_world_cam = T
+        return f
+
+    direct = Mapper(cfg.mapper_config())
+    for i in range(N):
+        direct.integrate(frame(i, true[i]))
+    # kept frames (no source), in RAM: frame 1 starts wrong, is revised twice mid-run, frame 3 once at the end
+    m = Mapper(cfg.mapper_config())
+    for i in range(N):
+        m.integrate(frame(i, _moved(true[i], i) if i in (1, 3) else true[i]))
+        if i == 2:
+            assert m.revise(1, _moved(true[1], 7))
+            assert m.revise(1, true[1])
+            assert not m.revise(1, true[1])  # unchanged pose: nothing to do
+    with pytest.raises(AssertionError):
+        _assert_same_memory(m, direct)
+    m.revise(3, true[3])
+    _assert_same_memory(m, direct)
+    np.testing.assert_array_equal(m.prediction().labels, direct.prediction().labels)
+    # deltas in a folder, data from a frame source, a checkpoint between integration and revision
+    f = Mapper(cfg.mapper_config(), folder=tmp_path / "f", frame_source=frames)
+    for i in range(N):
+        f.integrate(frame(i, _moved(true[i], i) if i == 1 else true[i]))
+        if i == 2:
+            f.save()
+    f.revise(1, true[1])  # frame 1 is committed: its new delta is staged until the next save
+    f.close()  # waits for the background write (the mapper stays usable)
+    assert (mapstore.staged_path(mapstore.delta_path(tmp_path / "f", 1))).exists()
+    f.save()
+    assert not list((tmp_path / "f" / "deltas").glob("*.new"))
+    f.close()
+    _assert_same_memory(f, direct)
+    d = tmp_path / "d"
+    direct.save(d)
+    assert (tmp_path / "f" / "memory.npz").read_bytes() == (d / "memory.npz").read_bytes()
+
+
+def test_remove_equals_never_added_and_save_load(mapped, tmp_path):
+    _, cfg, frames = mapped
+    m = Mapper(cfg.mapper_config())
+    for i in range(N):
+        m.integrate(frames(i))
+    without = Mapper(cfg.mapper_config())
+    for i in range(N):
+        if i != 2:
+            without.integrate(frames(i))
+    m.remove(2)
+    assert m.frame_ids == [0, 1, 3, 4] == without.frame_ids
+    _assert_same_memory(m, without)
+    np.testing.assert_array_equal(m.prediction().labels, without.prediction().labels)
+    with pytest.raises(PanovoccError, match="not in the map"):
+        m.remove(2)
+    with pytest.raises(PanovoccError, match="already in the map"):
+        m.integrate(frames(3))
+    # save / load round trip, ids 0 1 3 4 kept in memory.npz
+    folder = m.save(tmp_path / "m")
+    with np.load(folder / "memory.npz") as z:
+        assert z["frame_ids"].tolist() == [0, 1, 3, 4] and int(z["frames_done"]) == 4
+    back = Mapper.load(folder)
+    assert back.frame_ids == [0, 1, 3, 4] and back.config == m.config
+    _assert_same_memory(back, m)
+    np.testing.assert_array_equal(back.prediction().labels, m.prediction().labels)
+    # a loaded map keeps working: revising needs the frames' data, removing does not
+    with pytest.raises(PanovoccError, match="frame_source"):
+        back.revise(0, _moved(frames(0).T_world_cam, 1))
+    back.frame_source = frames
+    back.integrate(frames(2))  # put frame 2 back: equal to the full map
+    full = Mapper(cfg.mapper_config())
+    for i in range(N):
+        full.integrate(frames(i))
+    _assert_same_memory(back, full)
+    back.remove(4)
+    back.save()
+    assert not mapstore.delta_path(folder, 4).exists() and mapstore.delta_path(folder, 2).exists()
+    again = Mapper.load(folder)
+    assert again.frame_ids == [0, 1, 2, 3]
+    full.remove(4)
+    _assert_same_memory(again, full)
+    # a new mapper may not take over a folder that holds a map
+    with pytest.raises(PanovoccError, match="already holds a map"):
+        Mapper(cfg.mapper_config(), folder=folder)
+
+
+def test_staged_delta_rolled_forward_or_discarded(mapped, tmp_path):
+    """A revise killed after memory.npz (the commit) but before the rename is completed on load."""
+    _, cfg, frames = mapped
+    m = Mapper(cfg.mapper_config(), folder=tmp_path / "m", frame_source=frames)
+    for i in range(3):
+        m.integrate(frames(i))
+    m.save()
+    T = _moved(frames(1).T_world_cam, 3)
+    m.revise(1, T)
+    m.close()
+    staged = mapstore.staged_path(mapstore.delta_path(tmp_path / "m", 1))
+    new_bytes = staged.read_bytes()
+    # not committed: a reload discards the staged delta and keeps the old pose
+    back = Mapper.load(tmp_path / "m")
+    assert not staged.exists() and np.array_equal(back.pose(1), frames(1).T_world_cam)
+    # committed (memory.npz written) but not renamed: rolled forward
+    staged.write_bytes(new_bytes)
+    m._rpu.store.commit = lambda folder, write: write()  # the kill: memory written, nothing renamed
+    m._rpu.save(tmp_path / "m")
+    assert staged.exists()
+    back = Mapper.load(tmp_path / "m")
+    assert not staged.exists() and np.array_equal(back.pose(1), T)
+    back.remove(1)  # reads the delta: its pose matches memory.npz
+    ref = Mapper(cfg.mapper_config())
+    for i in (0, 2):
+        ref.integrate(frames(i))
+    _assert_same_memory(back, ref)
+
+
+def test_frame_checks_and_empty_depth_frame(mapped):
+    _, cfg, frames = mapped
+    m = Mapper(cfg.mapper_config())
+    f = frames(0)
+    empty = Frame(f.rgb, np.zeros_like(f.depth), f.T_world_cam, f.camera, logits=f.logits)
+    assert m.integrate(empty) == 0 and m.empty_frames == [0] and len(m.memory) == 0
+    assert m.integrate(frames(1)) == 1
+    g = m.prediction()
+    assert (g.labels != 255).any()
+    with pytest.raises(PanovoccError, match="logits have 3 classes"):
+        m.integrate(Frame(f.rgb, f.depth, f.T_world_cam, f.camera, logits=f.logits[..., :3]))
+    with pytest.raises(PanovoccError, match="depth is float64"):
+        m.integrate(Frame(f.rgb, f.depth.astype(np.float64), f.T_world_cam, f.camera))
+    with pytest.raises(PanovoccError, match="finite"):
+        m.integrate(Frame(f.rgb, f.depth, np.full((4, 4), np.nan), f.camera))
+    with pytest.raises(PanovoccError, match="2:1"):
+        ErpCamera(64, 20)
+    # a geometry-only mapper ignores logits
+    geo = Mapper(MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy))
+    geo.integrate(frames(1))
+    assert [c.name for c in geo.memory.specs] == ["A", "N", "F", "O"]
+    assert set(np.unique(geo.prediction().labels).tolist()) <= {0, 254, 255}
+
+
+def test_map_with_an_empty_depth_frame_and_revise_without_the_old_pose_file(seq_dir, tmp_path, capsys):
+    import shutil
+
+    from panovocc_cli.cli import main
+
+    seq = tmp_path / "seq"
+    shutil.copytree(seq_dir, seq)
+    from panovocc_cli.io.images import write_png
+
+    write_png(seq / "depth" / "000002.png", np.zeros((W // 2, W), np.uint16))  # the sensor dropped frame 2
+    wrong = _poses(N)
+    wrong[3] = _moved(wrong[3], 1)
+    write_poses(tmp_path / "wrong.txt", wrong)
+    with pytest.raises(SystemExit) as e:
+        main(["map", str(seq), str(tmp_path / "o"), "--poses", str(tmp_path / "wrong.txt"), "--quiet",
+              "--checkpoint-every", "2"])
+    io = capsys.readouterr()
+    assert e.value.code == 0 and "1 frame(s) had no valid depth" in io.out and ": 2" in io.out
+    (tmp_path / "wrong.txt").unlink()  # revise must not need the pose file the map was made with
+    s = run_revise(tmp_path / "o", seq / "poses.txt", progress=False)
+    assert s["revised"] == 1
+    s2 = run_map(MapConfig(seq=str(seq), out=str(tmp_path / "direct"), checkpoint_every=0), progress=False)
+    assert s2["empty_frames"] == [2]
+    for name in ("memory.npz", "prediction.npz", "map.ply"):
+        assert (tmp_path / "o" / name).read_bytes() == (tmp_path / "direct" / name).read_bytes(), name
