@@ -83,7 +83,7 @@ class Delta:
 
     def __post_init__(self):
         self.keys = np.asarray(self.keys, dtype=np.int64)
-        self.channels = {k: np.asarray(v, dtype=np.int64).reshape(len(self.keys), -1) for k, v in self.channels.items()}
+        self.channels = {k: _rows(v, len(self.keys)) for k, v in self.channels.items()}
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -92,6 +92,16 @@ class Delta:
         if self.keys.ndim != 1 or (len(self.keys) > 1 and np.any(np.diff(self.keys) <= 0)):
             raise ValueError("delta keys must be a sorted unique 1-D int64 array")
         return self
+
+
+def _rows(values, n: int) -> np.ndarray:
+    """A channel as (n, width) int64 (an (n,) array is one column; an empty delta keeps its width)."""
+    a = np.asarray(values, dtype=np.int64)
+    if a.ndim == 2 and a.shape[0] == n:
+        return a
+    if n == 0 and a.size == 0:
+        return a.reshape(0, a.shape[-1] if a.ndim == 2 else 1)
+    return a.reshape(n, -1)
 
 
 def merge_deltas(parts: Sequence[Delta]) -> Delta:

@@ -114,3 +114,17 @@ def test_channels_sliced_from_one_rows_array_add_like_separate_arrays(monkeypatc
     for name in ("A", "E", "O"):
         uk, want = _sums_by_key(kept, name)
         np.testing.assert_array_equal(a.gather(uk)[name], want)
+
+
+def test_empty_delta_and_all_zero_depth_frame():
+    """A frame with no valid depth (a dropped sensor frame) gives an empty delta, not a crash."""
+    from panovocc_cli.mapping.contributors import geometry_delta
+    from panovocc_cli.mapping.params import GeometryParams
+
+    d = Delta(np.zeros(0, np.int64), {"A": np.zeros(0, np.int64), "E": np.zeros((0, 3), np.int64)})
+    assert d.channels["A"].shape == (0, 1) and d.channels["E"].shape == (0, 3)
+    delta = geometry_delta(np.zeros((32, 64), np.float32), np.eye(4), GeometryParams(stride=1))
+    assert len(delta) == 0
+    mem = VoxelMemory(0.08)
+    mem.add(delta)
+    assert len(mem) == 0
