@@ -131,20 +131,19 @@ class MapperConfig:
             raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
 
 
-def has_valid_depth(depth: np.ndarray, geometry: GeometryParams) -> bool:
-    """Whether any pixel's depth lies in ``[min_range, max_range]`` (metres)."""
-    d = np.asarray(depth)
-    return bool(np.any((d >= geometry.min_range) & (d <= geometry.max_range)))
+def has_measurement(depth: np.ndarray) -> bool:
+    """Whether any pixel has a depth (> 0 metres; 0 = invalid)."""
+    return bool(np.any(np.asarray(depth) > 0))
 
 
 def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = None) -> Delta:
     """One frame's delta: geometry, merged with semantics when the frame has logits and ``config`` a vocabulary.
 
-    A frame with no depth in ``[min_range, max_range]`` (a dropped sensor frame) is an empty observation:
-    an empty delta. ``rays`` : (H, W, 3) float64 unit rays of the frame's camera (cached by the caller).
+    A frame without any valid depth (a dropped sensor frame, all zero) is an empty observation: an empty
+    delta. ``rays`` : (H, W, 3) float64 unit rays of the frame's camera (cached by the caller).
     """
     g = config.geometry
-    if not has_valid_depth(frame.depth, g):
+    if not has_measurement(frame.depth):
         return Delta(np.zeros(0, np.int64), {})
     parts = [geometry_delta(frame.depth, frame.T_world_cam, g)]
     if config.vocab and frame.logits is not None:
@@ -190,7 +189,7 @@ class Mapper:
         self._rays: dict = {}
         ids = self._rpu.store.ids()
         self._next_id = ids[-1] + 1 if ids else 0
-        self.empty_frames: list[int] = []  # ids integrated here whose depth had no valid pixel
+        self.empty_frames: list[int] = []  # ids integrated here whose delta was empty (no valid depth)
 
     # -- state -----------------------------------------------------------------------------------
     @property
@@ -233,8 +232,9 @@ class Mapper:
     def integrate(self, frame: Frame) -> int:
         """Add a frame; returns its id (``frame.index`` when set, else the next unused id).
 
-        A frame whose depth has no pixel in ``[min_range, max_range]`` is integrated as an empty
-        observation (it changes nothing; its id is listed in :attr:`empty_frames`).
+        A frame that touches no voxel (no valid depth pixel, e.g. a dropped sensor frame, or none within
+        range) is integrated as an empty observation: it changes nothing and its id is listed in
+        :attr:`empty_frames`.
         """
         fid = int(frame.index) if frame.index is not None else self._next_id
         if fid < 0:
@@ -243,7 +243,7 @@ class Mapper:
             raise PanovoccError(f"frame {fid} is already in the map (revise or remove it)")
         delta = self._delta(frame)
         self._rpu.keep(fid, delta, frame.T_world_cam)
-        if len(delta) == 0 and not has_valid_depth(frame.depth, self.config.geometry):
+        if len(delta) == 0:
             self.empty_frames.append(fid)
         if self.frame_source is None:
             self._frames[fid] = frame
