@@ -260,3 +260,22 @@ def test_map_with_an_empty_depth_frame_and_revise_without_the_old_pose_file(seq_
     assert s2["empty_frames"] == [2]
     for name in ("memory.npz", "prediction.npz", "map.ply"):
         assert (tmp_path / "o" / name).read_bytes() == (tmp_path / "direct" / name).read_bytes(), name
+
+
+def test_checkpoint_of_the_earlier_form_still_loads(mapped, tmp_path):
+    """Checkpoints written before the streaming mapper listed the poses of all N frames beside frames_done."""
+    _, cfg, frames = mapped
+    m = Mapper(cfg.mapper_config())
+    for i in range(2):
+        m.integrate(frames(i))
+    folder = m.save(tmp_path / "c")
+    arrays, done, poses, ids = mapstore.read_memory(folder)
+    assert done == 2 and poses.shape == (2, 4, 4) and ids is None
+    mapstore.write_memory(folder, arrays, 2, np.stack([frames(i).T_world_cam for i in range(N)]))
+    back = Mapper.load(folder, frame_source=frames)
+    assert back.frame_ids == [0, 1]
+    _assert_same_memory(back, m)
+    for i in range(2, N):
+        back.integrate(frames(i))
+        m.integrate(frames(i))
+    _assert_same_memory(back, m)
