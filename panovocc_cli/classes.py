@@ -6,7 +6,8 @@ Id 0 is ``unlabeled`` in images and ``empty`` in grids (CONVENTIONS.md).
 
 from __future__ import annotations
 
-from typing import Sequence
+import re
+from typing import Iterable, Sequence
 
 from .errors import PanovoccError
 
@@ -53,23 +54,93 @@ def class_color(name: str) -> tuple[int, int, int]:
     return (64 + (h & 0x7F), 64 + ((h >> 8) & 0x7F), 64 + ((h >> 16) & 0x7F))
 
 
-def parse_class_set(spec: str, available: Sequence[str] | None = None) -> list[str]:
-    """Resolve ``eval8`` | ``open4`` | ``all`` | ``a,b,c`` into a list of class names.
+# Grid labels 1..253 index a class list whose entry 0 is "empty" (CONVENTIONS.md).
+MAX_VOCAB = 253
 
-    ``all`` needs ``available`` (the names present, without ``empty``/``unlabeled``).
+# Named class sets of ``--vocab`` and ``--classes``; ``all`` (the classes present in the data at hand:
+# the sequence's for ``map``/``segeval``, the ground truth's for ``eval``) is resolved by the caller.
+NAMED_SETS: dict[str, tuple[str, ...]] = {
+    "eval8": EVAL8,
+    "open4": OPEN4,
+    "eval12": DEFAULT_VOCAB,
+    "default": DEFAULT_VOCAB,
+}
+ALL = "all"
+_SET_LIKE = re.compile(r"^(eval|open)\d+$")
+
+
+def parse_vocab(spec: str | Sequence[str] | None = None, available: Sequence[str] | None = None,
+                what: str = "vocabulary") -> list[str]:
+    """The one parser of class lists: ``map --vocab``, ``segeval --vocab/--classes``, ``eval --classes``.
+
+    Parameters
+    ----------
+    spec : str, sequence of str or None
+        ``None`` or ``"default"`` gives eval8 + open4 (:data:`DEFAULT_VOCAB`). A string is a comma- or
+        ``+``-separated list whose items are class names or the named sets ``eval8``, ``open4``,
+        ``eval12`` (= ``default``) and ``all`` (e.g. ``"eval8+open4"``, ``"eval8,pillow,rug"``).
+    available : sequence of str or None
+        The classes ``all`` stands for (the data's class names; ``empty``/``unlabeled`` are dropped).
+        None: ``all`` is an error.
+    what : str, the option's name in error messages
+
+    Returns
+    -------
+    names : list of str
+        Canonical names (:func:`canonical_name`: ``lamp`` -> ``lighting``), in the order given,
+        duplicates removed (first occurrence kept).
+
+    Raises
+    ------
+    PanovoccError
+        If the list is empty, names the reserved ``empty``/``unlabeled`` classes, names an unknown set
+        (``eval99``, ``open7``: set-like names are never taken as class names), uses ``all`` without
+        data to resolve it, or has more than 253 classes (the grid format's limit).
     """
-    s = spec.strip().lower()
-    if s == "eval8":
-        return list(EVAL8)
-    if s == "open4":
-        return list(OPEN4)
-    if s == "eval12":
-        return list(DEFAULT_VOCAB)
-    if s == "all":
-        if available is None:
-            raise PanovoccError("class set 'all' needs the classes of the ground truth")
-        return [c for c in available if c not in (EMPTY, UNLABELED)]
-    names = [canonical_name(c) for c in s.split(",") if c.strip()]
-    if not names:
-        raise PanovoccError(f"empty class list {spec!r}: expected eval8, open4, all or a comma-separated list")
-    return names
+    if spec is None:
+        items: Iterable[str] = DEFAULT_VOCAB
+        shown = "default"
+    elif isinstance(spec, str):
+        shown = spec
+        items = [t for part in spec.split(",") for t in part.split("+")]
+    else:
+        shown = ",".join(map(str, spec))
+        items = spec
+    out: list[str] = []
+    seen: set[str] = set()
+    for raw in items:
+        if not isinstance(raw, str):
+            raise PanovoccError(f"{what} {shown!r}: class names must be strings, got {raw!r}")
+        token = raw.strip().lower()
+        if not token:
+            continue
+        if token == ALL:
+            if available is None:
+                raise PanovoccError(f"{what} {shown!r}: 'all' needs data to take the classes from")
+            names: Iterable[str] = [n for n in available if canonical_name(n) not in (EMPTY, UNLABELED)]
+        elif token in NAMED_SETS:
+            names = NAMED_SETS[token]
+        elif _SET_LIKE.match(token):
+            raise PanovoccError(f"{what} {shown!r}: unknown class set {token!r}; the sets are "
+                                f"{', '.join(list(NAMED_SETS) + [ALL])}")
+        else:
+            names = (token,)
+        for n in names:
+            c = canonical_name(n)
+            if c in (EMPTY, UNLABELED):
+                raise PanovoccError(f"{what} {shown!r}: {c!r} is reserved (id 0 of images and grids)")
+            if c not in seen:
+                seen.add(c)
+                out.append(c)
+    if not out:
+        raise PanovoccError(f"empty {what} {shown!r}: expected class names or the sets "
+                            f"{', '.join(list(NAMED_SETS) + [ALL])}, e.g. 'eval8,curtain'")
+    if len(out) > MAX_VOCAB:
+        raise PanovoccError(f"{what} has {len(out)} classes, at most {MAX_VOCAB} fit in a grid")
+    return out
+
+
+def parse_class_set(spec: str, available: Sequence[str] | None = None) -> list[str]:
+    """Classes to score (``eval --classes``, ``segeval --classes``): :func:`parse_vocab` with ``all`` =
+    ``available`` (the ground truth's classes)."""
+    return parse_vocab(spec, available, what="class list")

@@ -135,12 +135,9 @@ class SequenceFrames:
 
     def __call__(self, i: int) -> Frame:
         frame = self.seq.frame(i)
-        if self.segmenter is not None:
-            from ..semantics.segmenter import FrameContext
-
-            ctx = FrameContext(self.seq.labels(i), self.seq.meta.class_names)
+        if self.segmenter is not None:  # no ground truth in the call: frame_id = the frame's index
             t0 = time.perf_counter()
-            frame.logits = self.segmenter.logits(frame.rgb, self.vocab, i, ctx)
+            frame.logits = self.segmenter.logits(frame.rgb, self.vocab, frame_id=i)
             self.segmenter_seconds += time.perf_counter() - t0
         return frame
 
@@ -149,10 +146,12 @@ def sequence_frames(cfg: MapConfig, seq: Sequence) -> SequenceFrames:
     """The frame source of a resolved config (the segmenter is built once, here)."""
     if not cfg.semantic.enabled:
         return SequenceFrames(seq)
-    from ..semantics.segmenter import make_segmenter
+    from ..semantics.registry import build_segmenter
+    from ..semantics.simulated import sequence_label_source
 
     s = cfg.semantic
-    seg = make_segmenter(s.segmenter, seed=int(s.seed), noise=float(s.noise))
+    labels = sequence_label_source(seq) if seq.has_labels else None  # the simulator's ground truth
+    seg = build_segmenter(s.segmenter, seed=int(s.seed), noise=float(s.noise), label_source=labels)
     return SequenceFrames(seq, seg, s.vocab)
 
 

@@ -112,11 +112,13 @@ def resolve(p: SemanticParams, seq) -> SemanticParams:
         Empty/invalid vocabulary, unknown segmenter, negative noise, ``simulated`` (or ``auto``) on a
         sequence without ``semantic/`` labels, a precomputed folder that fails validation, bad ply_color.
     """
-    from ..semantics.segmenter import make_segmenter, parse_vocab
+    from ..classes import parse_vocab
+    from ..semantics.registry import build_segmenter, is_simulated
 
     if p.ply_color not in PLY_COLORS:
         raise PanovoccError(f"--ply-color must be one of {', '.join(PLY_COLORS)}, got {p.ply_color!r}")
-    vocab = parse_vocab(p.vocab)  # an empty vocabulary is an error even for --segmenter none
+    # an empty vocabulary is an error even for --segmenter none; 'all' = the sequence's classes
+    vocab = parse_vocab(p.vocab, seq.meta.class_names if seq.has_labels else None, what="vocabulary (--vocab)")
     spec = p.segmenter.strip()
     if spec == SEGMENTER_AUTO:
         if not seq.has_labels:
@@ -126,13 +128,13 @@ def resolve(p: SemanticParams, seq) -> SemanticParams:
         spec = "simulated"
     if spec == SEGMENTER_NONE:
         return dataclasses.replace(p, segmenter=SEGMENTER_NONE, vocab=[])
-    if spec == "simulated" and not seq.has_labels:
+    if is_simulated(spec) and not seq.has_labels:
         raise PanovoccError("the simulated segmenter needs ground-truth labels (semantic/), which this sequence "
                             "lacks: pass --segmenter precomputed:DIR or --segmenter none", seq.root)
     if spec.startswith("precomputed:"):
         folder = spec[len("precomputed:"):]
         spec = "precomputed:" + (str(Path(folder).resolve()) if folder else "")
-    seg = make_segmenter(spec, seed=int(p.seed), noise=float(p.noise))  # validates spec, noise, folder
+    seg = build_segmenter(spec, seed=int(p.seed), noise=float(p.noise))  # validates spec, noise, folder
     return dataclasses.replace(p, segmenter=seg.spec or spec, vocab=list(vocab))
 
 
@@ -291,22 +293,46 @@ def run_segeval(cfg: SegevalConfig, progress: bool = True):
     Returns
     -------
     (Miou2D, frames) : the pooled result (.miou, .iou, .accuracy) and the scored frame indices
+
+    Raises
+    ------
+    PanovoccError
+        Bad ``every``, no labels, a bad vocabulary or class list, or a class list none of whose classes
+        occur in the sequence's class names (a mean over no class).
     """
-    from ..classes import parse_class_set
+    from ..classes import canonical_name, parse_class_set, parse_vocab
     from ..io.sequence import Sequence
-    from ..semantics.metrics2d import segmenter_2d_miou
-    from ..semantics.segmenter import make_segmenter, parse_vocab
+    from ..semantics.metrics2d import empty_scores, frame_scores
+    from ..semantics.registry import build_segmenter
+    from ..semantics.simulated import sequence_label_source
 
     if cfg.every < 1:
         raise PanovoccError(f"--every must be >= 1, got {cfg.every}")
     seq = Sequence(cfg.seq)
     if not seq.has_labels:
         raise PanovoccError("segeval needs ground-truth labels (semantic/)", seq.root)
-    vocab = parse_vocab(cfg.vocab)
-    classes = parse_class_set(cfg.classes)
+    names = list(seq.meta.class_names)
+    vocab = parse_vocab(cfg.vocab, names, what="vocabulary (--vocab)")
+    classes = parse_class_set(cfg.classes, names)
+    known = {canonical_name(n) for n in names[1:]}
+    if not any(c in known for c in classes):
+        raise PanovoccError(f"none of the classes {','.join(classes)} occur in the sequence's labels "
+                            f"(its classes: {', '.join(sorted(known))})", seq.root / "meta.json")
     spec = cfg.segmenter.strip()
     if spec == SEGMENTER_AUTO:
         spec = "simulated"
-    seg = make_segmenter(spec, seed=int(cfg.seed), noise=float(cfg.noise))
+    seg = build_segmenter(spec, seed=int(cfg.seed), noise=float(cfg.noise), label_source=sequence_label_source(seq))
     frames = list(range(0, len(seq), cfg.every))
-    return segmenter_2d_miou(seq, seg, vocab, classes=classes, frames=frames, progress=progress), frames
+    total = empty_scores(classes)
+    it = frames
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(frames, desc="2D mIoU", unit="frame")
+    for i in it:
+        logits = seg.logits(seq.rgb(i), vocab, frame_id=i)
+        total.add(frame_scores(np.argmax(logits, axis=-1), vocab, seq.labels(i), names, classes))
+    if not total.present.any():
+        raise PanovoccError(f"none of the classes {','.join(classes)} occur in the labels of the scored frames",
+                            seq.root)
+    return total, frames

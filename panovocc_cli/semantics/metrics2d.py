@@ -17,7 +17,6 @@ import numpy as np
 
 from ..classes import EVAL8, canonical_name
 from ..errors import PanovoccError
-from .segmenter import FrameContext, Segmenter
 
 
 @dataclass
@@ -106,40 +105,8 @@ def frame_scores(pred: np.ndarray, vocab: Sequence[str], labels: np.ndarray, cla
                   scored=int(m.sum()), frames=1, present=gc > 0)
 
 
-def segmenter_2d_miou(seq, segmenter: Segmenter, vocab: Sequence[str], classes: Sequence[str] = EVAL8,
-                      frames: Sequence[int] | None = None, progress: bool = False) -> Miou2D:
-    """Pooled per-frame 2D mIoU of a segmenter over a sequence's ground-truth labels.
-
-    Parameters
-    ----------
-    seq : io.sequence.Sequence (or a path to one), with ``semantic/`` labels
-    segmenter : Segmenter
-    vocab : sequence of str, canonical vocabulary (:func:`segmenter.parse_vocab`)
-    classes : sequence of str, the scored class set (default eval8)
-    frames : sequence of int or None, frames to score (default all)
-    progress : bool, show a tqdm bar on stderr
-
-    Returns
-    -------
-    Miou2D (``.miou``, ``.iou``, ``.accuracy``)
-    """
-    from ..io.sequence import Sequence as SequenceFolder
-
-    if not isinstance(seq, SequenceFolder):
-        seq = SequenceFolder(seq)
-    if not seq.has_labels:
-        raise PanovoccError("2D mIoU needs ground-truth labels (semantic/ folder)", seq.root)
-    idx = list(range(len(seq))) if frames is None else list(frames)
-    total = Miou2D(classes=[canonical_name(c) for c in classes], tp=np.zeros(len(classes), np.int64),
-                   fp=np.zeros(len(classes), np.int64), fn=np.zeros(len(classes), np.int64),
-                   present=np.zeros(len(classes), dtype=bool))
-    it = idx
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(idx, desc="2D mIoU", unit="frame")
-    for i in it:
-        labels = seq.labels(i)
-        logits = segmenter.logits(seq.rgb(i), vocab, i, FrameContext(labels, seq.meta.class_names))
-        total.add(frame_scores(np.argmax(logits, axis=-1), vocab, labels, seq.meta.class_names, classes))
-    return total
+def empty_scores(classes: Sequence[str]) -> Miou2D:
+    """Zero scores over a class set, to pool frames into with :meth:`Miou2D.add`."""
+    n = len(classes)
+    return Miou2D(classes=[canonical_name(c) for c in classes], tp=np.zeros(n, np.int64), fp=np.zeros(n, np.int64),
+                  fn=np.zeros(n, np.int64), present=np.zeros(n, dtype=bool))

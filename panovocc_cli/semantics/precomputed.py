@@ -30,7 +30,7 @@ from ..io.jsonfile import read_json
 from ..io.images import read_image, write_png
 from ..io.npz import write_npz
 from ..io.sequence import frame_stem
-from .segmenter import FrameContext, Segmenter
+from .segmenter import Segmenter
 
 MISSING_LOGPROB = float(np.log(1e-6))
 DEFAULT_LABEL_CONFIDENCE = 0.9
@@ -156,15 +156,20 @@ class PrecomputedSegmenter(Segmenter):
         self.file_vocab = read_vocab_json(self.folder)
         self.spec = f"precomputed:{folder}"
 
-    def logits(self, rgb: np.ndarray, vocab: Sequence[str], frame_index: int,
-               context: FrameContext | None = None) -> np.ndarray:
-        """Log-probabilities ``(H, W, C)`` float32 over ``vocab`` (valid logits; see :class:`Segmenter`)."""
+    def logits(self, rgb: np.ndarray, vocab: Sequence[str], *, frame_id=None) -> np.ndarray:
+        """Log-probabilities ``(H, W, C)`` float32 over ``vocab`` (valid logits; see :class:`Segmenter`).
+
+        ``frame_id``: the frame's index in its sequence (int, file ``DIR/<frame_stem(i)>.*``) or a file
+        stem (str)."""
+        if frame_id is None:
+            raise PanovoccError("a precomputed segmenter needs the frame id (which file to read)", self.folder)
         known = {canonical_name(n) for n in self.file_vocab}
         if not any(canonical_name(v) in known for v in vocab):
             raise PanovoccError(f"none of the vocabulary words {list(vocab)} appear in vocab.json "
                                 f"{self.file_vocab}", self.folder / "vocab.json")
         shape = None if rgb is None else tuple(np.shape(rgb)[:2])
-        lp = load_frame_scores(self.folder, frame_stem(frame_index), len(self.file_vocab), shape)
+        stem = frame_id if isinstance(frame_id, str) else frame_stem(int(frame_id))
+        lp = load_frame_scores(self.folder, stem, len(self.file_vocab), shape)
         return map_to_vocab(lp, self.file_vocab, vocab)
 
 

@@ -95,15 +95,17 @@ def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
     """E and S in the memory = the float sums of the per-frame evidence, to the fixed-point resolution."""
     from panovocc_cli.io.sequence import Sequence
     from panovocc_cli.semantics.evidence import frame_semantic_delta
-    from panovocc_cli.semantics.segmenter import FrameContext, make_segmenter, parse_vocab
+    from panovocc_cli.classes import parse_vocab
+    from panovocc_cli.semantics.registry import build_segmenter
+    from panovocc_cli.semantics.simulated import sequence_label_source
 
     out, _ = default_map
     mem, _, _ = load_memory(out)
     seq = Sequence(sem_seq)
-    seg, vocab = make_segmenter("simulated"), parse_vocab()
+    seg, vocab = build_segmenter("simulated", label_source=sequence_label_source(seq)), parse_vocab()
     acc = {}
     for i in range(N):
-        logits = seg.logits(seq.rgb(i), vocab, i, FrameContext(seq.labels(i), seq.meta.class_names))
+        logits = seg.logits(seq.rgb(i), vocab, frame_id=i)
         keys, ch = frame_semantic_delta(seq.depth(i), seq.rgb(i), logits, seq.poses[i], 0.08)
         for k, e, s in zip(keys, ch["E"], ch["S"]):
             a = acc.setdefault(int(k), [np.zeros(len(vocab)), 0.0])

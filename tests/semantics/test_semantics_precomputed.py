@@ -27,11 +27,11 @@ def test_logits_round_trip_and_vocab_mapping(tmp_path):
     assert json.loads((tmp_path / "vocab.json").read_text()) == ["wall", "floor", "lighting", "pillow"]
     seg = PrecomputedSegmenter(tmp_path)
     # same vocabulary: identical probabilities
-    out = seg.logits(RGB, ["wall", "floor", "lighting", "pillow"], 3)
+    out = seg.logits(RGB, ["wall", "floor", "lighting", "pillow"], frame_id=3)
     assert out.shape == (H, W, 4) and out.dtype == np.float32
     np.testing.assert_allclose(softmax(out), softmax(L), atol=1e-5)
     # other order, alias, a missing word: matched by canonical name, missing gets ~1e-6
-    out = seg.logits(RGB, ["lighting", "wall", "chair"], 3)
+    out = seg.logits(RGB, ["lighting", "wall", "chair"], frame_id=3)
     np.testing.assert_allclose(out[..., 2], MISSING_LOGPROB, rtol=1e-6)
     lp = np.log(softmax(L))
     expect = softmax(np.concatenate([lp[..., [2, 0]], np.full((H, W, 1), MISSING_LOGPROB)], -1))
@@ -44,8 +44,8 @@ def test_float16_and_probs(tmp_path):
     write_precomputed(tmp_path, 0, L, FILE_VOCAB)  # float16 by default
     write_precomputed(tmp_path, 1, softmax(L), FILE_VOCAB, kind="probs", dtype=np.float32)
     seg = PrecomputedSegmenter(tmp_path)
-    a = softmax(seg.logits(RGB, FILE_VOCAB, 0))
-    b = softmax(seg.logits(RGB, FILE_VOCAB, 1))
+    a = softmax(seg.logits(RGB, FILE_VOCAB, frame_id=0))
+    b = softmax(seg.logits(RGB, FILE_VOCAB, frame_id=1))
     np.testing.assert_allclose(a, softmax(L), atol=5e-3)
     np.testing.assert_allclose(b, softmax(L), atol=1e-4)
     assert np.array_equal(a.argmax(-1), L.argmax(-1))
@@ -58,12 +58,12 @@ def test_label_png_with_confidence(tmp_path):
     write_precomputed_labels(tmp_path, 0, lab, FILE_VOCAB, conf)
     write_precomputed_labels(tmp_path, 1, np.zeros((H, W), int), FILE_VOCAB)
     seg = PrecomputedSegmenter(tmp_path)
-    P = softmax(seg.logits(RGB, FILE_VOCAB, 0))
+    P = softmax(seg.logits(RGB, FILE_VOCAB, frame_id=0))
     m = lab != 255
     assert np.array_equal(P.argmax(-1)[m], lab[m])
     np.testing.assert_allclose(P.max(-1)[m], 0.6, atol=3e-3)
     np.testing.assert_allclose(P[0, 0], 0.25, atol=1e-5)
-    P1 = softmax(seg.logits(RGB, FILE_VOCAB, 1))
+    P1 = softmax(seg.logits(RGB, FILE_VOCAB, frame_id=1))
     np.testing.assert_allclose(P1[..., 0], 0.9, atol=1e-5)  # default confidence
 
 
@@ -71,7 +71,7 @@ def test_npz_wins_over_png(tmp_path):
     L = random_logits(3)
     write_precomputed(tmp_path, 0, L, FILE_VOCAB, dtype=np.float32)
     write_precomputed_labels(tmp_path, 0, np.zeros((H, W), int), FILE_VOCAB)
-    P = softmax(PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, 0))
+    P = softmax(PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, frame_id=0))
     assert np.array_equal(P.argmax(-1), L.argmax(-1))
 
 
@@ -116,14 +116,14 @@ def test_missing_folder(tmp_path):
 def test_bad_npz(tmp_path, arrays, msg):
     seg = PrecomputedSegmenter(_setup(tmp_path, arrays))
     with pytest.raises(PanovoccError, match=msg) as e:
-        seg.logits(RGB, FILE_VOCAB, 0)
+        seg.logits(RGB, FILE_VOCAB, frame_id=0)
     assert "000000.npz" in str(e.value) and "\n" not in str(e.value)
 
 
 def test_missing_frame(tmp_path):
     seg = PrecomputedSegmenter(_setup(tmp_path, {"logits": np.zeros((H, W, 4), np.float32)}))
     with pytest.raises(PanovoccError, match="frame 000001 not found"):
-        seg.logits(RGB, FILE_VOCAB, 1)
+        seg.logits(RGB, FILE_VOCAB, frame_id=1)
 
 
 def test_bad_label_pngs(tmp_path):
@@ -134,21 +134,21 @@ def test_bad_label_pngs(tmp_path):
     write_png(tmp_path / "000002_conf.png", np.zeros((H, W + 2), np.uint8))
     seg = PrecomputedSegmenter(tmp_path)
     with pytest.raises(PanovoccError, match="label id 7 but vocab.json has 4"):
-        seg.logits(RGB, FILE_VOCAB, 0)
+        seg.logits(RGB, FILE_VOCAB, frame_id=0)
     with pytest.raises(PanovoccError, match="the frame is 16x8"):
-        seg.logits(RGB, FILE_VOCAB, 1)
+        seg.logits(RGB, FILE_VOCAB, frame_id=1)
     with pytest.raises(PanovoccError, match="confidence must be"):
-        seg.logits(RGB, FILE_VOCAB, 2)
+        seg.logits(RGB, FILE_VOCAB, frame_id=2)
 
 
 def test_no_overlap_with_the_vocabulary(tmp_path):
     seg = PrecomputedSegmenter(_setup(tmp_path, {"logits": np.zeros((H, W, 4), np.float32)}))
     with pytest.raises(PanovoccError, match="none of the vocabulary words"):
-        seg.logits(RGB, ["spaceship"], 0)
+        seg.logits(RGB, ["spaceship"], frame_id=0)
 
 
 def test_corrupt_npz(tmp_path):
     _setup(tmp_path)
     (tmp_path / "000000.npz").write_bytes(b"not a zip")
     with pytest.raises(PanovoccError, match="cannot read"):
-        PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, 0)
+        PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, frame_id=0)

@@ -6,7 +6,8 @@ import pytest
 from panovocc_cli.classes import DEFAULT_VOCAB, EVAL8
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.semantics.precomputed import PrecomputedSegmenter, write_precomputed
-from panovocc_cli.semantics.segmenter import FrameContext, make_segmenter, parse_vocab
+from panovocc_cli.classes import parse_class_set, parse_vocab
+from panovocc_cli.semantics.registry import build_segmenter
 from panovocc_cli.semantics.simulated import SimulatedSegmenter
 
 
@@ -42,9 +43,9 @@ def test_too_many_classes():
 
 
 def test_make_segmenter_specs(tmp_path):
-    assert isinstance(make_segmenter("simulated"), SimulatedSegmenter)
+    assert isinstance(build_segmenter("simulated"), SimulatedSegmenter)
     write_precomputed(tmp_path, 0, np.zeros((2, 4, 2), np.float32), ["wall", "floor"])
-    seg = make_segmenter(f"precomputed:{tmp_path}")
+    seg = build_segmenter(f"precomputed:{tmp_path}")
     assert isinstance(seg, PrecomputedSegmenter) and seg.spec == f"precomputed:{tmp_path}"
 
 
@@ -52,15 +53,40 @@ def test_make_segmenter_specs(tmp_path):
                                       ("precomputed:/nonexistent/dir", "not found")])
 def test_bad_segmenter_specs(spec, msg):
     with pytest.raises(PanovoccError, match=msg):
-        make_segmenter(spec)
+        build_segmenter(spec)
 
 
 def test_negative_noise_is_an_error():
     with pytest.raises(PanovoccError, match="noise"):
-        make_segmenter("simulated", noise=-1)
+        build_segmenter("simulated", noise=-1)
 
 
 def test_simulated_needs_ground_truth():
-    seg = make_segmenter("simulated")
+    seg = build_segmenter("simulated")  # no label source
     with pytest.raises(PanovoccError, match="ground-truth labels"):
-        seg.logits(np.zeros((4, 8, 3), np.uint8), ["wall"], 0, FrameContext(None, ["unlabeled"]))
+        seg.logits(np.zeros((4, 8, 3), np.uint8), ["wall"], frame_id=0)
+    seg = build_segmenter("simulated", label_source=lambda i: (np.zeros((4, 8), np.int64), ["unlabeled"]))
+    with pytest.raises(PanovoccError, match="frame id"):
+        seg.logits(np.zeros((4, 8, 3), np.uint8), ["wall"])
+    assert seg.logits(np.zeros((4, 8, 3), np.uint8), ["wall"], frame_id=0).shape == (4, 8, 1)
+
+
+def test_simulated_confidence_specs():
+    assert build_segmenter("simulated").spec == "simulated"
+    seg = build_segmenter("simulated:overconfident")
+    assert seg.spec == "simulated:overconfident" and seg.config.confidence == "overconfident"
+    with pytest.raises(PanovoccError, match="confidence model"):
+        build_segmenter("simulated:psychic")
+
+
+def test_one_parser_for_vocab_and_classes():
+    assert parse_class_set("eval8,pillow") == list(EVAL8) + ["pillow"]  # a set, not a class named 'eval8'
+    assert parse_class_set("eval8") == parse_vocab("eval8") == list(EVAL8)
+    assert parse_class_set("all", ["empty", "wall", "Lamp", "floor"]) == ["wall", "lighting", "floor"]
+    assert parse_vocab("all,pillow", ["unlabeled", "wall"]) == ["wall", "pillow"]
+    for bad, msg in [("eval99", "unknown class set"), ("open7,wall", "unknown class set"), ("", "empty"),
+                     (" , +", "empty"), ("all", "needs data")]:
+        with pytest.raises(PanovoccError, match=msg):
+            parse_class_set(bad)
+        with pytest.raises(PanovoccError, match=msg):
+            parse_vocab(bad)

@@ -3,17 +3,18 @@
 import numpy as np
 import pytest
 
-from panovocc_cli.classes import DEFAULT_VOCAB, EVAL8
+from panovocc_cli.classes import DEFAULT_VOCAB, EVAL8, canonical_name
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.erp import latitudes
 from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
 from panovocc_cli.semantics.evidence import softmax
-from panovocc_cli.semantics.metrics2d import frame_scores, segmenter_2d_miou
-from panovocc_cli.semantics.segmenter import FrameContext, make_segmenter
-from panovocc_cli.semantics.simulated import (SimulatedConfig, expected_labels, simulate_logits,
-                                              smooth_fields)
+from panovocc_cli.mapping.semantic import SegevalConfig, run_segeval
+from panovocc_cli.semantics.metrics2d import frame_scores
+from panovocc_cli.semantics.registry import build_segmenter
+from panovocc_cli.semantics.simulated import CONFIDENCE_MODELS, SimulatedConfig, expected_labels, simulate_logits
 
 from semantics_helpers import CLASS_NAMES, pose, render_room
+from semantics_reference import simulate_logits_numpy, smooth_fields
 
 VOCAB = list(DEFAULT_VOCAB)
 W = 256
@@ -59,10 +60,11 @@ def test_out_of_vocabulary_classes_become_similar_words():
 
 
 def test_default_noise_is_realistic_but_imperfect(room_frames):
-    seg = make_segmenter("simulated", seed=3)
+    labels = {i: lab for i, (lab, _, _) in enumerate(room_frames)}
+    seg = build_segmenter("simulated", seed=3, label_source=lambda i: (labels[i], CLASS_NAMES))
     total = None
     for i, (lab, _, rgb) in enumerate(room_frames):
-        s = frame_scores(seg.logits(rgb, VOCAB, i, FrameContext(lab, CLASS_NAMES)).argmax(-1), VOCAB, lab,
+        s = frame_scores(seg.logits(rgb, VOCAB, frame_id=i).argmax(-1), VOCAB, lab,
                          CLASS_NAMES, EVAL8)
         total = s if total is None else (total.add(s) or total)
     exact = None
@@ -183,9 +185,55 @@ def test_segmenter_2d_miou_on_a_sequence(tmp_path):
         write_frame(tmp_path, i, rgb, dep, lab)
         poses.append(pose())
     write_sequence_poses(tmp_path, np.stack(poses))
-    exact = segmenter_2d_miou(tmp_path, make_segmenter("simulated", noise=0), VOCAB)
-    noisy = segmenter_2d_miou(tmp_path, make_segmenter("simulated"), VOCAB)
+    exact, _ = run_segeval(SegevalConfig(seq=str(tmp_path), noise=0, vocab=",".join(VOCAB)), progress=False)
+    noisy, _ = run_segeval(SegevalConfig(seq=str(tmp_path), vocab=",".join(VOCAB)), progress=False)
     assert exact.frames == 3 and exact.scored == sum((f[0] > 0).sum() for f in fr)
     # a perfect in-vocabulary class has IoU 1 (wall: nothing outside the vocabulary maps to it here)
     assert exact.iou["ceiling"] == pytest.approx(1.0)
     assert noisy.miou < exact.miou
+
+
+@pytest.mark.parametrize("cfg", [SimulatedConfig(), SimulatedConfig(noise=0), SimulatedConfig(seed=5, noise=2.0),
+                                 SimulatedConfig(confidence="overconfident"), SimulatedConfig(confidence="raw")])
+def test_compiled_simulator_matches_numpy_reference(room_frames, cfg):
+    """The compiled simulator = the plain-numpy one (tests/semantics_reference.py) to float32 rounding:
+    the fields are summed in a different order (|diff| ~1e-5 on logits of magnitude ~10) and the
+    ellipse weights in float64 instead of float32; the argmax is identical."""
+    vocab = VOCAB + ["pillow", "rug"]
+    for i, (lab, _, _) in enumerate(room_frames[:3]):
+        a = simulate_logits(lab, CLASS_NAMES, vocab, i, cfg)
+        b = simulate_logits_numpy(lab, CLASS_NAMES, vocab, i, cfg)
+        assert a.dtype == np.float32 and a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+        assert np.array_equal(a.argmax(-1), b.argmax(-1))
+
+
+def test_confidence_model_is_seeded_not_fitted(room_frames):
+    """The frame temperature comes from the seed alone: the same logits before scaling give the same
+    temperature whatever the labels; overconfident = sharper than calibrated, on the same errors."""
+    lab = room_frames[0][0]
+    cal = softmax(simulate_logits(lab, CLASS_NAMES, VOCAB, 0, SimulatedConfig(seed=2)))
+    over = softmax(simulate_logits(lab, CLASS_NAMES, VOCAB, 0, SimulatedConfig(seed=2, confidence="overconfident")))
+    assert np.array_equal(cal.argmax(-1), over.argmax(-1))  # same errors, only the temperature differs
+    assert over.max(-1).mean() > cal.max(-1).mean() + 0.05
+    raw = simulate_logits(lab, CLASS_NAMES, VOCAB, 0, SimulatedConfig(seed=2, confidence="raw"))
+    scaled = simulate_logits(lab, CLASS_NAMES, VOCAB, 0, SimulatedConfig(seed=2))
+    ratio = raw[np.abs(raw) > 1] / scaled[np.abs(raw) > 1]
+    assert np.ptp(ratio) < 1e-3 and 0.5 < ratio.mean() < 3  # one temperature for the whole frame
+    assert set(CONFIDENCE_MODELS) >= {"calibrated", "overconfident"}
+    with pytest.raises(PanovoccError, match="confidence model"):
+        simulate_logits(lab, CLASS_NAMES, VOCAB, 0, SimulatedConfig(confidence="psychic"))
+
+
+def test_segeval_class_errors(tmp_path):
+    fr = frames(2, 64)
+    write_meta(tmp_path, SequenceMeta(width=64, height=32, frames=2, class_names=CLASS_NAMES))
+    for i, (lab, dep, rgb) in enumerate(fr):
+        write_frame(tmp_path, i, rgb, dep, lab)
+    write_sequence_poses(tmp_path, np.stack([pose(), pose()]))
+    with pytest.raises(PanovoccError, match="none of the classes"):
+        run_segeval(SegevalConfig(seq=str(tmp_path), classes="foo"), progress=False)
+    with pytest.raises(PanovoccError, match="unknown class set"):
+        run_segeval(SegevalConfig(seq=str(tmp_path), classes="eval99"), progress=False)
+    res, _ = run_segeval(SegevalConfig(seq=str(tmp_path), classes="all", noise=0), progress=False)
+    assert set(res.classes) == {canonical_name(c) for c in CLASS_NAMES[1:]} and np.isfinite(res.miou)
