@@ -155,7 +155,7 @@ def segeval(
 @app.command()
 def bench(
     outdir: Path = typer.Argument(..., help="Working folder (the rendered sequence, the map, bench.json)."),
-    frames: int = typer.Option(20, help="Frames of the benchmark sequence."),
+    frames: int = typer.Option(40, help="Frames of the benchmark sequence."),
     width: int = typer.Option(1024, help="ERP width of the benchmark sequence, pixels (height = width / 2)."),
 ) -> None:
     """Mapper speed against Open3D VoxelBlockGrid TSDF fusion (cube faces) on the same frames."""

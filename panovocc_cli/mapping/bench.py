@@ -1,16 +1,23 @@
-"""``panovocc bench``: the mapper's per-frame geometric update against Open3D's C++ TSDF fusion.
+"""``panovocc bench``: the mapper's speed against Open3D's C++ TSDF fusion on the same frames.
 
-Both integrate the same rendered ERP frames in one process. Open3D's ``VoxelBlockGrid`` takes each
-panorama cut into 6 cube-face pinhole views (90 degrees, W/4 pixels square, z-depth, nearest-pixel
-resampling; the cutting is not timed), voxel size and block size as ours (8^3), depth_max = our
-max_range, truncation 3 voxels (TRUNC_VOXELS). Timed for us: PSVF kernel + free-space test + delta
-extraction + memory add (``update``), in a loop of its own over the same in-memory frames (no file
-reading or writing beside it), and separately the end-to-end ``run_map`` (frames read, deltas written
-by a background thread that competes for the cores, so its ``update`` share reads higher).
+The frames: a procedural home (``datasets.synth``, seed ``seed``) rendered at ``width`` x ``width / 2``
+with labels, ``frames`` frames (rendered once into OUT and reused).
 
-Statistic: each pass integrates every frame into a fresh map; its figure is total time / frames. Both
-sides get one untimed warm-up, then ``repeats`` timed passes, ours and Open3D's interleaved so that
-load from other jobs hits both alike; the figures are the medians over the passes.
+Two kinds of figures, each a ratio measured in one run:
+
+* **update only** (ms/frame, in-memory frames, no file I/O): the geometric update (PSVF kernel +
+  free-space test + delta extraction + memory add), the semantic update (:func:`.semantic.semantic_delta`
+  from precomputed logits + memory add) and the simulated segmenter's own cost (``logits``); and
+  Open3D's ``VoxelBlockGrid`` TSDF integrate (each panorama as 6 cube-face pinhole views, 90 degrees,
+  W/4 pixels square, z-depth, nearest-pixel resampling, cut untimed; voxel and block size as ours
+  (8^3), depth_max = our max_range, truncation 3 voxels (TRUNC_VOXELS)). Each pass integrates every
+  frame into a fresh map; one untimed warm-up, then ``repeats`` passes of each, interleaved so that load
+  from other jobs hits all alike; medians.
+* **whole process** (seconds, a fresh Python process each, from its start to its files written):
+  ``python -m panovocc_cli map SEQ OUT`` with semantics (the default simulated segmenter) and with
+  ``--segmenter none``, against ``python -m panovocc_cli.mapping.o3d_tsdf SEQ OUT`` (read the same
+  frame files, cut the cube faces, integrate, extract the surface point cloud, write it). Interleaved,
+  ``process_repeats`` runs of each, medians. The numba caches are warm (one untimed run first).
 """
 
 from __future__ import annotations
@@ -32,22 +39,25 @@ TRUNC_VOXELS = 3.0  # Open3D TSDF truncation, voxels (its default is 8; 3 is the
 @dataclass
 class BenchConfig:
     out: str  # working folder
-    frames: int = 20
+    frames: int = 40
     width: int = 1024  # ERP width, pixels
     voxel_size: float = 0.08  # metres
     seed: int = 0
     repeats: int = 5  # timed passes of each side (median reported)
+    process_repeats: int = 3  # timed whole-process runs of each command (median reported)
 
 
-def cube_faces(depth: np.ndarray, face: int):
-    """Cut a radial ERP depth map into 6 pinhole z-depth faces.
+def cube_face_maps(height: int, width: int, face: int):
+    """Where each pixel of the 6 pinhole cube faces samples an ERP image (nearest pixel).
 
     Returns
     -------
-    list of (R_cam_face (3, 3) float64, depth_z (face, face) float32 metres)
+    rotations : list of 6 (3, 3) float64 R_cam_face
+    rows, cols : (6, face, face) int64 ERP pixel of each face pixel
+    norms : (6, face, face) float64, length of the face ray (z = 1): z-depth = radial depth / norm
     K : (3, 3) float64 intrinsics of every face (90 degree field of view)
     """
-    H, W = depth.shape
+    H, W = height, width
     f = face / 2.0
     K = np.array([[f, 0, face / 2 - 0.5], [0, f, face / 2 - 0.5], [0, 0, 1.0]])
     u, v = np.meshgrid(np.arange(face), np.arange(face))
@@ -61,16 +71,32 @@ def cube_faces(depth: np.ndarray, face: int):
         c, s = np.cos(a), np.sin(a)
         return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
 
-    out = []
+    rots, rows, cols, norms = [], [], [], []
     for R in (rot_y(0), rot_y(np.pi / 2), rot_y(np.pi), rot_y(-np.pi / 2), rot_x(np.pi / 2), rot_x(-np.pi / 2)):
         d = dirs @ R.T
         n = np.linalg.norm(d, axis=-1)
         theta = np.arctan2(d[..., 0], d[..., 2])
         phi = -np.arcsin(d[..., 1] / n)
-        col = np.floor((theta + np.pi) * W / (2 * np.pi)).astype(np.int64) % W
-        row = np.clip(np.floor((np.pi / 2 - phi) * H / np.pi).astype(np.int64), 0, H - 1)
-        out.append((R, (depth[row, col] / n).astype(np.float32)))
-    return out, K
+        cols.append(np.floor((theta + np.pi) * W / (2 * np.pi)).astype(np.int64) % W)
+        rows.append(np.clip(np.floor((np.pi / 2 - phi) * H / np.pi).astype(np.int64), 0, H - 1))
+        rots.append(R)
+        norms.append(n)
+    return rots, np.stack(rows), np.stack(cols), np.stack(norms), K
+
+
+def cube_faces(depth: np.ndarray, face: int, maps=None):
+    """Cut a radial ERP depth map into 6 pinhole z-depth faces.
+
+    maps : the result of :func:`cube_face_maps` for this size (computed when None)
+
+    Returns
+    -------
+    list of (R_cam_face (3, 3) float64, depth_z (face, face) float32 metres)
+    K : (3, 3) float64 intrinsics of every face (90 degree field of view)
+    """
+    rots, rows, cols, norms, K = maps if maps is not None else cube_face_maps(*depth.shape, face)
+    z = (depth[rows, cols] / norms).astype(np.float32)
+    return [(R, z[i]) for i, R in enumerate(rots)], K
 
 
 def open3d_tsdf_pass(depths, poses, voxel_size: float, depth_max: float):
@@ -82,9 +108,10 @@ def open3d_tsdf_pass(depths, poses, voxel_size: float, depth_max: float):
 
     dev = o3c.Device("CPU:0")
     face = depths[0].shape[1] // 4
+    maps = cube_face_maps(*depths[0].shape, face)
     prepared = []
     for d, T in zip(depths, poses):
-        faces, K = cube_faces(d, face)
+        faces, K = cube_faces(d, face, maps)
         for R, z in faces:
             T_face = np.eye(4)
             T_face[:3, :3] = T[:3, :3] @ R
@@ -134,46 +161,156 @@ def panovocc_update_pass(depths, poses, geo):
     return run
 
 
-def run_bench(cfg: BenchConfig) -> dict:
-    """Render (once) a furnished-room sequence, map it, fuse it with Open3D; return and save the figures."""
-    from .pipeline import MapConfig, resolve, run_map
-    from .params import GeometryParams
-    from .synthetic import write_room_sequence
+def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int):
+    """A callable that runs the semantic update (:func:`.semantic.semantic_delta` from the given logits,
+    then :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
+    (one warm-up pass first)."""
+    from ..geometry.erp import ray_directions
+    from ..semantics.evidence import EvidenceWeights
+    from .memory import VoxelMemory
+    from .semantic import semantic_channels, semantic_delta
 
-    if cfg.frames < 2 or cfg.width < 64 or cfg.repeats < 1:
-        raise PanovoccError("bench needs at least 2 frames, width >= 64 and repeats >= 1")
-    out = Path(cfg.out)
-    seq_dir = out / f"seq_{cfg.width}x{cfg.width // 2}_{cfg.frames}"
+    rays = ray_directions(depths[0].shape[1])
+    weights = EvidenceWeights()
+
+    def run():
+        mem = VoxelMemory(geo.voxel_size, semantic_channels(vocab_size))
+        t0 = time.perf_counter()
+        for d, c, lg, T in zip(depths, rgbs, logits, poses):
+            mem.add(semantic_delta(d, c, lg, T, geo.voxel_size, weights, geo.min_range, geo.max_range, rays))
+        return 1e3 * (time.perf_counter() - t0) / len(depths)
+
+    run()
+    return run
+
+
+def segmenter_pass(segmenter, rgbs, vocab):
+    """A callable that runs ``segmenter.logits`` on every frame (frame ids 0..n-1) and returns ms per
+    frame (one warm-up call first)."""
+    segmenter.logits(rgbs[0], vocab, frame_id=0)
+
+    def run():
+        t0 = time.perf_counter()
+        for i, c in enumerate(rgbs):
+            segmenter.logits(c, vocab, frame_id=i)
+        return 1e3 * (time.perf_counter() - t0) / len(rgbs)
+
+    return run
+
+
+def process_seconds(args) -> float:
+    """Wall-clock seconds of ``python ARGS`` in a fresh process, from its start to its exit."""
+    import subprocess
+    import sys
+
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, *map(str, args)], capture_output=True, text=True)
+    dt = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise PanovoccError(f"bench: {' '.join(map(str, args))} failed: {r.stderr.strip()[-500:]}")
+    return dt
+
+
+def bench_sequence(out: Path, cfg: "BenchConfig") -> Path:
+    """The benchmark's labelled sequence, rendered once into ``out`` (reused when it matches)."""
+    from ..datasets.synth import SynthConfig, run_synth
+    from ..rendering.render import RenderConfig, run_render
+
+    seq_dir = out / f"seq_s{cfg.seed}_{cfg.width}x{cfg.width // 2}_{cfg.frames}"
     try:
         meta = read_meta(seq_dir)
-        fresh = meta.frames != cfg.frames or meta.width != cfg.width
+        if meta.frames == cfg.frames and meta.width == cfg.width and Sequence(seq_dir).has_labels:
+            return seq_dir
     except PanovoccError:
-        fresh = True
-    if fresh:
-        write_room_sequence(seq_dir, cfg.frames, cfg.width, seed=cfg.seed)
+        pass
+    scene = out / f"scene_s{cfg.seed}_{cfg.frames}"
+    if not (scene / "traj.txt").exists():
+        run_synth(SynthConfig(out=scene, seed=cfg.seed, frames=cfg.frames))
+    run_render(RenderConfig(scene=scene, out=seq_dir, width=cfg.width))
+    return seq_dir
+
+
+def run_bench(cfg: BenchConfig) -> dict:
+    """Render (once) a labelled synthetic home, then time the updates and the whole processes (see the
+    module docstring); return and save the figures."""
+    import shutil
+
+    from ..classes import parse_vocab
+    from ..semantics.registry import build_segmenter
+    from ..semantics.simulated import sequence_label_source
+    from .params import GeometryParams
+    from .pipeline import MapConfig, resolve
+
+    if cfg.frames < 2 or cfg.width < 64 or cfg.repeats < 1 or cfg.process_repeats < 1:
+        raise PanovoccError("bench needs at least 2 frames, width >= 64, repeats >= 1 and process_repeats >= 1")
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    seq_dir = bench_sequence(out, cfg)
     seq = Sequence(seq_dir)
-    depths = [seq.depth(i) for i in range(len(seq))]
+    n = len(seq)
+    depths = [seq.depth(i) for i in range(n)]
+    rgbs = [seq.rgb(i) for i in range(n)]
     geo = GeometryParams(voxel_size=cfg.voxel_size)
-    mcfg = MapConfig(seq=str(seq_dir), out=str(out / "map"), geometry=geo, checkpoint_every=0)
-    geo = resolve(mcfg, cfg.width).geometry
-    ours_pass = panovocc_update_pass(depths, seq.poses, geo)  # also compiles / loads the numba cache
-    s = run_map(mcfg, overwrite=True, progress=False)
+    geo = resolve(MapConfig(seq=str(seq_dir), out=str(out / "map"), geometry=geo), cfg.width).geometry
+    vocab = parse_vocab(None)
+    seg = build_segmenter("simulated", seed=cfg.seed, label_source=sequence_label_source(seq))
+    labels = [seq.labels(i) for i in range(n)]
+    seg.label_source = lambda i, names=list(seq.meta.class_names): (labels[i], names)  # in memory: no PNG reads
+    logits = [seg.logits(c, vocab, frame_id=i) for i, c in enumerate(rgbs)]
+
+    geo_pass = panovocc_update_pass(depths, seq.poses, geo)  # also compiles / loads the numba caches
+    sem_pass = semantic_update_pass(depths, rgbs, logits, seq.poses, geo, len(vocab))
+    seg_pass = segmenter_pass(seg, rgbs, vocab)
     o3d_pass = open3d_tsdf_pass(depths, seq.poses, cfg.voxel_size, geo.max_range)
-    ours, o3d = [], []
-    for _ in range(cfg.repeats):  # interleaved, so that other jobs' load hits both sides alike
-        ours.append(ours_pass())
-        o3d.append(o3d_pass())
-    ours_ms, o3d_ms = float(np.median(ours)), float(np.median(o3d))
-    ratio = ours_ms / o3d_ms
-    res = {"config": asdict(cfg), "stride": geo.stride,
-           "statistic": f"median over {cfg.repeats} interleaved passes of (pass time / frames)",
-           "panovocc_update_ms_per_frame": ours_ms, "panovocc_update_passes_ms": ours,
-           "panovocc_end_to_end_ms_per_frame": s["ms_per_frame"],
-           "panovocc_update_in_run_map_ms_per_frame": s["update_ms_per_frame"],
-           "open3d_tsdf_ms_per_frame": o3d_ms, "open3d_tsdf_passes_ms": o3d, "ratio": ratio}
-    res["line"] = (f"{cfg.frames} frames {cfg.width}x{cfg.width // 2}: panovocc geometric update "
-                   f"{ours_ms:.1f} ms/frame (map end to end with delta writes {s['ms_per_frame']:.1f}), "
-                   f"Open3D VoxelBlockGrid TSDF (6 cube faces) {o3d_ms:.1f} ms/frame, ratio {ratio:.2f}x "
-                   f"(medians of {cfg.repeats} passes)")
+    del logits
+    passes = {"geometry": [], "semantics": [], "segmenter": [], "open3d": []}
+    for _ in range(cfg.repeats):  # interleaved, so that other jobs' load hits every side alike
+        passes["geometry"].append(geo_pass())
+        passes["semantics"].append(sem_pass())
+        passes["segmenter"].append(seg_pass())
+        passes["open3d"].append(o3d_pass())
+    ms = {k: float(np.median(v)) for k, v in passes.items()}
+
+    cmds = {"map_semantics": ["-m", "panovocc_cli", "map", seq_dir, out / "map_sem", "--overwrite", "--quiet"],
+            "map_geometry": ["-m", "panovocc_cli", "map", seq_dir, out / "map_geo", "--segmenter", "none",
+                             "--overwrite", "--quiet"],
+            "open3d": ["-m", "panovocc_cli.mapping.o3d_tsdf", seq_dir, out / "o3d",
+                       "--voxel-size", cfg.voxel_size, "--depth-max", geo.max_range]}
+    for args in cmds.values():  # untimed: numba caches, imports
+        process_seconds(args)
+    runs = {k: [] for k in cmds}
+    for _ in range(cfg.process_repeats):
+        for k, args in cmds.items():
+            runs[k].append(process_seconds(args))
+    sec = {k: float(np.median(v)) for k, v in runs.items()}
+    for k in ("map_sem", "map_geo"):
+        shutil.rmtree(out / k, ignore_errors=True)
+
+    r_sem_geo = ms["semantics"] / ms["geometry"]
+    r_e2e = sec["map_semantics"] / sec["open3d"]
+    r_e2e_geo = sec["map_geometry"] / sec["open3d"]
+    res = {"config": asdict(cfg), "stride": geo.stride, "frames": n,
+           "statistic": f"median over {cfg.repeats} interleaved passes (ms/frame) and {cfg.process_repeats} "
+                        "interleaved whole-process runs (s)",
+           "update_ms_per_frame": ms, "update_passes_ms": passes,
+           "process_seconds": sec, "process_runs_s": runs,
+           "ratio_semantic_to_geometric_update": r_sem_geo,
+           "ratio_map_with_semantics_to_open3d_process": r_e2e,
+           "ratio_map_without_semantics_to_open3d_process": r_e2e_geo,
+           # the figures earlier versions reported
+           "panovocc_update_ms_per_frame": ms["geometry"], "open3d_tsdf_ms_per_frame": ms["open3d"],
+           "ratio": ms["geometry"] / ms["open3d"]}
+    lines = [
+        f"{n} frames {cfg.width}x{cfg.width // 2} (synth seed {cfg.seed}), update only, ms/frame "
+        f"(median of {cfg.repeats} interleaved passes):",
+        f"  geometric update {ms['geometry']:.1f} | semantic update {ms['semantics']:.1f} "
+        f"(ratio semantic/geometric {r_sem_geo:.2f}) | simulated segmenter {ms['segmenter']:.1f} | "
+        f"Open3D VoxelBlockGrid TSDF integrate (6 cube faces) {ms['open3d']:.1f}",
+        f"whole process, s (median of {cfg.process_repeats} interleaved runs):",
+        f"  panovocc map with semantics {sec['map_semantics']:.2f} (ratio to Open3D {r_e2e:.2f}x) | "
+        f"without semantics {sec['map_geometry']:.2f} ({r_e2e_geo:.2f}x) | Open3D TSDF read+integrate+extract+write "
+        f"{sec['open3d']:.2f}",
+    ]
+    res["line"] = "\n".join(lines)
     write_text(out / "bench.json", json.dumps(res, indent=2) + "\n")
     return res

@@ -1,13 +1,11 @@
 """The fast geometric update gives exactly the reference results; ``panovocc bench`` end to end."""
 
-import json
 
 import numpy as np
 import pytest
 from box_room import HI, LO, box_depth, turned_pose
 
 from panovocc_cli.errors import PanovoccError
-from panovocc_cli.mapping.bench import BenchConfig, run_bench
 from panovocc_cli.mapping.contributors import _extract, frame_box
 from panovocc_cli.mapping.freespace import carve
 
@@ -113,18 +111,6 @@ def test_extract_and_frame_box_match_numpy():
     pmax = np.minimum(np.maximum((x + 1.5 * half).max(0), cam), cam + 3.0)
     np.testing.assert_array_equal(lo, np.floor(pmin / 0.08).astype(np.int64) - 1)
     np.testing.assert_array_equal(lo + shape - 1, np.floor(pmax / 0.08).astype(np.int64) + 1)
-
-
-def test_bench_end_to_end(tmp_path):
-    res = run_bench(BenchConfig(out=str(tmp_path), frames=3, width=128, repeats=2))
-    saved = json.loads((tmp_path / "bench.json").read_text())
-    assert saved["line"] == res["line"] and "ratio" in saved["line"]
-    assert len(saved["panovocc_update_passes_ms"]) == 2 and len(saved["open3d_tsdf_passes_ms"]) == 2
-    assert saved["panovocc_update_ms_per_frame"] > 0 and saved["open3d_tsdf_ms_per_frame"] > 0
-    assert saved["ratio"] == pytest.approx(saved["panovocc_update_ms_per_frame"] / saved["open3d_tsdf_ms_per_frame"])
-    assert saved["panovocc_end_to_end_ms_per_frame"] > 0
-    with pytest.raises(PanovoccError):
-        run_bench(BenchConfig(out=str(tmp_path), frames=1, width=128))
 
 
 def test_process_settings_for_the_shared_cores():
