@@ -1,9 +1,10 @@
 """Semantic side of the mapper: segmenters, per-frame semantic evidence and GSC consolidation.
 
-* :mod:`.segmenter` — the :class:`Segmenter` interface, :func:`make_segmenter`, :func:`parse_vocab`;
+* :mod:`.segmenter` — the :class:`Segmenter` interface (no ground truth in the call);
+* :mod:`.registry` — :func:`build_segmenter`, segmenters by name;
 * :mod:`.simulated` — the seeded ground-truth-based open-vocabulary segmenter (the default);
 * :mod:`.precomputed` — scores another model wrote (``precomputed:DIR``), with :func:`write_precomputed`;
-* :mod:`.evidence` — softmax, weights eta, ERP normals and the per-frame sparse semantic delta;
+* :mod:`.evidence` — softmax, weights eta and the compiled per-frame sparse semantic delta;
 * :mod:`.gsc` — Geometry-Aware Semantic Consolidation and the bounded nearest-evidence transfer;
-* :mod:`.metrics2d` — per-frame 2D mIoU of a segmenter against ground truth.
+* :mod:`.metrics2d` — per-frame 2D scores of a segmentation against ground truth (pure).
 """
