@@ -53,6 +53,22 @@ def _mark_hits(x, h, lo, hits):
             hits[i, j, k] = 1
 
 
+@nb.njit(cache=True)
+def _mark_hits_axis(x, ax, sa, k, h, lo, hits):
+    """Set ``hits`` to 1 in the voxels that contain a measurement x or the ends of its uncertainty segment
+    ``x +- k s_axis axis`` (the kernel's normal or ray axis, metres, world): a measurement within
+    ``k s`` of a voxel face counts as a view of both voxels of the face."""
+    nx, ny, nz = hits.shape
+    for p in range(x.shape[0]):
+        for e in range(3):
+            f = k * sa[p] * (e - 1)
+            i = int(np.floor((x[p, 0] + f * ax[p, 0]) / h)) - lo[0]
+            j = int(np.floor((x[p, 1] + f * ax[p, 1]) / h)) - lo[1]
+            kk = int(np.floor((x[p, 2] + f * ax[p, 2]) / h)) - lo[2]
+            if 0 <= i < nx and 0 <= j < ny and 0 <= kk < nz:
+                hits[i, j, kk] = 1
+
+
 @nb.njit(cache=True, inline="always")
 def _voxel_row(a, hit, o, scale, n_fill):
     """A voxel's fixed-point support, its frame count (a measurement inside, or support >= n_fill) and
@@ -163,7 +179,7 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
         A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
-        return _finish(A, x, depth, T_world_cam, p, lo, shape)
+        return _finish(A, x, depth, T_world_cam, p, lo, shape, ax, sa)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
     er = sr = None
@@ -190,13 +206,20 @@ def _check_box(shape) -> None:
                             "lower --max-range or raise --voxel-size")
 
 
-def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape) -> Delta:
+def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, ax=None, sa=None) -> Delta:
     """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
-    its measurements x ((n, 3) metres, world: the voxels that contain one count in N)."""
+    its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
+    kernel's axes ``ax`` (n, 3) and scales ``sa`` (n,) metres, so do the voxels that contain
+    ``x +- hit_k sa ax``)."""
     F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
                  p.min_range, p.max_range, p.carve_extent)
     hits = np.zeros(A.shape, np.uint8)
-    _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
+    if ax is not None and p.hit_k > 0:
+        _mark_hits_axis(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(ax, np.float64),
+                        np.ascontiguousarray(sa, np.float64), float(p.hit_k), float(p.voxel_size),
+                        np.asarray(lo, np.int64), hits)
+    else:
+        _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
     n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
     keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill)
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})

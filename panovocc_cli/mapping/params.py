@@ -28,6 +28,8 @@ class GeometryParams:
     extent: str = "surfel"  # "surfel": kernel on the local surface plane, factor P(plane through the voxel box);
     # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
     n_fill: float = 0.3  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
+    hit_k: float = 1.0  # surfel kernel: a measurement also counts in N for the voxels of x +- hit_k s_n n
+    # (robust to planes on a voxel face; 0 = only the voxel holding x)
     carve_extent: bool = True  # carve only voxels whose whole box lies in front of the observed local plane
     n_floor: float = 0.001  # metres; surfel kernel: floor of the scale along the normal
     c_min: float = 0.25  # surfel kernel: |cos incidence| floor of the in-plane footprint stretch
