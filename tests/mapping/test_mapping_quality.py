@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from panovocc_cli.geometry.lattice import index_to_center, unpack_keys
-from panovocc_cli.mapping import psvf
+from panovocc_cli.geometry.erp import trig_tables
+from panovocc_cli.mapping.psvf import footprint, noise_fit
 from panovocc_cli.mapping.contributors import geometry_delta
 from panovocc_cli.mapping.export import classify
 from panovocc_cli.mapping.memory import FIXED_SCALE, VoxelMemory
@@ -33,9 +34,9 @@ def noisy(depth, seed):
 
 
 def noise_table(depth, stride):
-    tables = psvf._trig_tables(*depth.shape)
-    r, res2, cinc = psvf._raw_residuals(depth, stride, 1, 0.1, 12.0, *tables)
-    return psvf.radial_noise_fit(r.ravel(), res2.ravel(), cinc.ravel(), 0.1, 12.0)
+    tables = trig_tables(*depth.shape)
+    r, res2, cinc = noise_fit._raw_residuals(depth, stride, 1, 0.1, 12.0, *tables)
+    return noise_fit.radial_noise_fit(r.ravel(), res2.ravel(), cinc.ravel(), 0.1, 12.0)
 
 
 def test_radial_noise_fit_recovers_the_sensor_noise():
@@ -55,7 +56,7 @@ def test_footprint_plane_fit_denoises_and_keeps_edges():
     depth = noisy(clean, 1)
     s = 4
     fit_r, fit_s = noise_table(depth, s)
-    rs, cnt = psvf._block_depths(depth, s, 0.1, 12.0, fit_r, fit_s, 2.0, 0.0005, 0.05)
+    rs, cnt = footprint._block_depths(depth, s, 0.1, 12.0, fit_r, fit_s, 2.0, 0.0005, 0.05)
     truth = clean[s // 2::s, s // 2::s].astype(np.float64)
     raw = depth[s // 2::s, s // 2::s].astype(np.float64)
     fitted = cnt > 1
@@ -68,11 +69,11 @@ def test_footprint_plane_fit_denoises_and_keeps_edges():
     step = clean.copy()
     step[200:260, 500:563] = 0.9
     fit_r, fit_s = noise_table(step, s)
-    rs, cnt = psvf._block_depths(step, s, 0.1, 12.0, fit_r, fit_s, 2.0, 0.0005, 0.05)
+    rs, cnt = footprint._block_depths(step, s, 0.1, 12.0, fit_r, fit_s, 2.0, 0.0005, 0.05)
     raw = step[s // 2::s, s // 2::s].astype(np.float64)
     np.testing.assert_allclose(rs, raw, atol=0.002)
     # footprints on the room's creases (two walls meet) stay within 2 mm of the true depth
-    np.testing.assert_allclose(psvf._block_depths(clean, s, 0.1, 12.0, *noise_table(clean, s), 2.0, 0.0005, 0.05)[0],
+    np.testing.assert_allclose(footprint._block_depths(clean, s, 0.1, 12.0, *noise_table(clean, s), 2.0, 0.0005, 0.05)[0],
                                truth, atol=0.002)
 
 
