@@ -219,7 +219,8 @@ def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
                  min_range: float, max_range: float, w_pole: float, r_half: float, c_norm: float,
                  voxel_size: float, kappa: float, n_floor: float, c_min: float, disc_k: float,
                  fit: bool = True, tol_abs: float = 0.0, radial_fit: bool = False, block: bool = False,
-                 block_k: float = 2.0, block_abs: float = 0.0005, block_sel: float = 0.05):
+                 block_k: float = 2.0, block_abs: float = 0.0005, block_sel: float = 0.05,
+                 block_inverse: bool = False):
     """Surfel-aligned kernels of the strided valid pixels (``GeometryParams.extent = "surfel"``).
 
     The local surface normal n of each sample comes from its neighbouring samples (+-stride pixels,
@@ -270,7 +271,7 @@ def lift_surfels(depth: np.ndarray, T_world_cam: np.ndarray, stride: int, alpha:
             fit_s = np.array([beta, alpha * max_range + beta])
     if block:
         rs, bcnt = _block_depths(depth, int(stride), float(min_range), float(max_range), fit_r, fit_s,
-                                 float(block_k), float(block_abs), float(block_sel))
+                                 float(block_k), float(block_abs), float(block_sel), bool(block_inverse))
     else:
         rs, bcnt = np.zeros((1, 1)), np.zeros((1, 1), np.int64)
     return _lift_surfel(depth, int(stride), R, t, float(alpha), float(beta), float(min_range), float(max_range),
@@ -283,5 +284,6 @@ def surfels_for(depth: np.ndarray, T_world_cam: np.ndarray, p, c_norm: float):
     """:func:`lift_surfels` with the parameters of a :class:`~.params.GeometryParams` ``p``."""
     return lift_surfels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range, p.w_pole,
                         p.r_half, c_norm, p.voxel_size, p.kappa, p.n_floor, p.c_min, p.disc_k, p.surfel_fit,
-                        p.edge_abs, p.radial == "fit", p.block, p.block_k, p.block_abs, p.block_sel)
+                        p.edge_abs, p.radial == "fit", p.block, p.block_k, p.block_abs, p.block_sel,
+                        p.block_inverse)
 

@@ -60,14 +60,18 @@ def _mark_hits(x, h, lo, hits):
 
 
 @nb.njit(cache=True)
-def _mark_hits_axis(x, ax, sa, k, h, lo, hits):
-    """Set ``hits`` to 1 in the voxels that contain a measurement x or the ends of its uncertainty segment
-    ``x +- k s_axis axis`` (the kernel's normal or ray axis, metres, world): a measurement within
-    ``k s`` of a voxel face counts as a view of both voxels of the face."""
+def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, h, lo, hits):
+    """Set ``hits`` to 1 in the voxels that contain a measurement x and, for a precise surfel (``surf`` 1,
+    ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position along the
+    normal), in those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
+    measurement that close to a voxel face counts as a view of both voxels of the face. Imprecise
+    measurements fall on both sides of a face by their own noise and are not spread."""
     nx, ny, nz = hits.shape
     for p in range(x.shape[0]):
+        s = max(sa[p] - n_floor, 0.0) if surf[p] != 0 else 0.0
+        s = k * s if s <= s_max else 0.0
         for e in range(3):
-            f = k * sa[p] * (e - 1)
+            f = s * (e - 1)
             i = int(np.floor((x[p, 0] + f * ax[p, 0]) / h)) - lo[0]
             j = int(np.floor((x[p, 1] + f * ax[p, 1]) / h)) - lo[1]
             kk = int(np.floor((x[p, 2] + f * ax[p, 2]) / h)) - lo[2]
@@ -181,11 +185,11 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     if p.extent not in ("box", "centre", "surfel"):
         raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected surfel, box or centre)")
     if p.kernel == "psvf" and p.extent == "surfel":
-        x, Pt, half, w, ax, sa, bb, _ = surfels_for(depth, T_world_cam, p, c_norm)
+        x, Pt, half, w, ax, sa, bb, surf = surfels_for(depth, T_world_cam, p, c_norm)
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
         A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
-        return _finish(A, x, depth, T_world_cam, p, lo, shape, ax, sa)
+        return _finish(A, x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
     er = sr = None
@@ -212,18 +216,19 @@ def _check_box(shape) -> None:
                             "lower --max-range or raise --voxel-size")
 
 
-def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, ax=None, sa=None) -> Delta:
+def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
     """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
     its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
-    kernel's axes ``ax`` (n, 3) and scales ``sa`` (n,) metres, so do the voxels that contain
-    ``x +- hit_k sa ax``)."""
+    kernel's ``surfels`` = (axes (n, 3), scales (n,) metres, surfel flags (n,) uint8), so do the voxels
+    that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max)."""
     F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
                  p.min_range, p.max_range, p.carve_extent)
     hits = np.zeros(A.shape, np.uint8)
-    if ax is not None and p.hit_k > 0:
+    if surfels is not None and p.hit_k > 0:
+        ax, sa, surf = surfels
         _mark_hits_axis(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(ax, np.float64),
-                        np.ascontiguousarray(sa, np.float64), float(p.hit_k), float(p.voxel_size),
-                        np.asarray(lo, np.int64), hits)
+                        np.ascontiguousarray(sa, np.float64), np.ascontiguousarray(surf), float(p.n_floor),
+                        float(p.hit_k), float(p.hit_max), float(p.voxel_size), np.asarray(lo, np.int64), hits)
     else:
         _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
     n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
