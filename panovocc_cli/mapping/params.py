@@ -27,7 +27,7 @@ class GeometryParams:
     max_range: float = 12.0  # metres; depths and voxels farther than this are ignored
     extent: str = "surfel"  # "surfel": kernel on the local surface plane, factor P(plane through the voxel box);
     # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
-    n_fill: float = 0.3  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
+    n_fill: float = 0.4  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
     hit_k: float = 1.0  # surfel kernel: a measurement also counts in N for the voxels of x +- hit_k s n where
     hit_max: float = 0.0005  # metres; ... s (the fitted position's std along n) <= hit_max: planes on a voxel face
     carve_extent: bool = True  # carve only voxels whose whole box lies in front of the observed local plane
