@@ -18,11 +18,15 @@ def synth(
     seed: int = typer.Option(DEFAULT_SEED, "--seed", help="Random seed; the same seed gives the same files."),
     rooms: Optional[int] = typer.Option(None, "--rooms", help="Number of rooms, 1-6 (default: 2 or 3 from the seed)."),
     frames: int = typer.Option(60, "--frames", help="Number of trajectory poses."),
+    offset: Optional[str] = typer.Option(None, "--offset", help="X,Y,Z metres: move the home (laid out from the "
+                                                                "origin) by this offset instead of the seeded one "
+                                                                "(e.g. 0,0,0 puts the floor on a voxel face)."),
 ) -> None:
     """Write a procedural multi-room indoor scene in Replica's format, with a trajectory through every room."""
-    from ..datasets.synth import SynthConfig, run_synth
+    from ..datasets.synth import SynthConfig, parse_offset, run_synth
 
-    s = run_synth(SynthConfig(out=scene, seed=seed, rooms=rooms, frames=frames))
+    s = run_synth(SynthConfig(out=scene, seed=seed, rooms=rooms, frames=frames,
+                              offset=None if offset is None else parse_offset(offset)))
     typer.echo(f"{scene}: {s['rooms']} rooms, {s['faces']} quads, {s['objects']} objects, "
                f"{len(s['classes'])} classes, {s['frames']} poses over {s['path_m']:.1f} m")
 

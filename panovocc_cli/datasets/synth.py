@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import EVAL8, OPEN4, canonical_name
-from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE
+from ..config import DEFAULT_SEED
 from ..errors import PanovoccError
 from ..geometry.poses import look_at
 from .meshbuild import MeshBuilder, Paint, Transform2D
@@ -48,13 +48,15 @@ class SynthConfig:
     """Options of ``panovocc synth``.
 
     out: scene folder to write (Replica layout); seed: random seed; rooms: number of rooms (None:
-    2 or 3 drawn from the seed); frames: trajectory poses.
+    2 or 3 drawn from the seed); frames: trajectory poses; offset: (x, y, z) metres the home is moved
+    from the origin (a user-chosen placement relative to the voxel lattice; None: drawn from the seed).
     """
 
     out: Path
     seed: int = DEFAULT_SEED
     rooms: int | None = None
     frames: int = 60
+    offset: tuple[float, float, float] | None = None
 
 
 @dataclass
@@ -892,51 +894,48 @@ def _orient(xy: np.ndarray, dense: np.ndarray, rng) -> np.ndarray:
 REQUIRED = tuple(EVAL8) + tuple(OPEN4)
 
 
-SHIFT_CLEAR = 0.004  # metres: large planes keep this far from faces of the default lattice (4x the depth PNG's 1 mm step)
-SHIFT_PLANE_AREA = 0.5  # m^2: an axis-aligned plane at least this large (walls, floor, ceiling, big furniture faces)
+SHIFT_STEP = 0.001  # metres: the seeded offset is a whole number of millimetres (the depth PNG's step)
+SHIFT_SPAN = 1.0  # metres: the seeded offset lies in [0, SHIFT_SPAN) on each axis
 
 
-def _lattice_shift(vertices: np.ndarray, quads: np.ndarray, rng: np.random.Generator, tries: int = 400) -> np.ndarray:
-    """A shift in [0.05, 0.95) m per axis that keeps the home's large axis-aligned planes at least
-    ``SHIFT_CLEAR`` from the faces of the default voxel lattice (the first of up to ``tries`` seeded draws
-    that does; else the clearest).
+def lattice_offset(seed: int) -> np.ndarray:
+    """The home's seeded offset from the origin: (3,) float64 metres, each axis uniform over the whole
+    millimetres of [0, ``SHIFT_SPAN``), drawn from ``np.random.default_rng([seed, SHIFT_STREAM])``.
 
-    A plane within a millimetre of a voxel face is a tie of the ground truth that no depth map stored
-    in millimetres can resolve; real scans put such planes anywhere, so the benchmark avoids the tie.
+    No clearance rule: modulo the default 8 cm lattice every millimetre position is equally likely, so
+    the floor (laid out at z = 0) lies exactly on a voxel face one scene in 80 and within 3 mm of one
+    about one in eleven, as large planes of real scans do. The mapper has to be robust to that.
     """
-    h = DEFAULT_VOXEL_SIZE
-    p = vertices[quads]  # (F, 4, 3)
-    n = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])  # twice the quad's vector area
-    area = 0.5 * np.linalg.norm(n, axis=1)
-    shift = np.empty(3)
-    for a in range(3):
-        flat = (np.abs(n[:, a]) > 0.999 * 2.0 * area) & (area > 0)
-        coord = np.round(p[flat, 0, a], 6)
-        vals, inv = np.unique(coord, return_inverse=True)
-        planes = vals[np.bincount(inv, weights=area[flat]) >= SHIFT_PLANE_AREA]
-        best, best_gap = 0.5, -1.0
-        for _ in range(tries):
-            sa = rng.uniform(0.05, 0.95)
-            frac = np.mod(planes + sa, h)
-            gap = float(np.minimum(frac, h - frac).min()) if len(planes) else h
-            if gap > best_gap:
-                best, best_gap = sa, gap
-            if gap >= SHIFT_CLEAR:
-                break
-        shift[a] = best
-    return shift
+    rng = np.random.default_rng([seed, SHIFT_STREAM])
+    return rng.integers(0, round(SHIFT_SPAN / SHIFT_STEP), size=3) * SHIFT_STEP
 
 
-def generate_scene(seed: int = DEFAULT_SEED, rooms: int | None = None, frames: int = 60):
+def parse_offset(text: str) -> tuple[float, float, float]:
+    """``"X,Y,Z"`` (metres, finite) -> a 3-tuple of floats; `PanovoccError` naming the option otherwise."""
+    parts = text.split(",")
+    try:
+        xyz = tuple(float(p) for p in parts)
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3 or not all(np.isfinite(xyz)) or max(abs(x) for x in xyz) > 1e4:
+        raise PanovoccError(f"--offset: expected X,Y,Z in metres (three finite numbers), got {text!r}")
+    return xyz
+
+
+def generate_scene(seed: int = DEFAULT_SEED, rooms: int | None = None, frames: int = 60,
+                   offset: tuple[float, float, float] | None = None):
     """Generate a procedural scene and its trajectory (pure, no file I/O).
+
+    ``offset``: (x, y, z) metres by which the home (laid out from the origin) is moved; None draws it
+    from the seed (`lattice_offset`). The layout itself does not depend on it.
 
     Returns
     -------
     dict with ``vertices`` (4F, 3) float64 metres (+Z up), ``quads`` (F, 4) int32, ``face_object`` (F,)
     int32, ``colors`` (4F, 3) uint8, ``object_classes`` list[str] (Replica names, e.g. ``tv-screen``),
     ``T_world_cam`` (frames, 4, 4) float64 (OpenCV axes), ``rooms`` list of (x0, x1, y0, y1) interiors,
-    ``floor_z`` float metres (the floor's height: the home is shifted by a seeded 0.05-0.95 m on each
-    axis so that no wall or floor lies on a voxel face), ``ceiling_height`` float metres above the floor.
+    ``floor_z`` float metres (the floor's height = the offset's z), ``offset`` (3,) float64 metres,
+    ``ceiling_height`` float metres above the floor.
     """
     if rooms is not None and not 1 <= rooms <= MAX_ROOMS:
         raise PanovoccError(f"--rooms must be between 1 and {MAX_ROOMS}, got {rooms}")
@@ -957,16 +956,17 @@ def generate_scene(seed: int = DEFAULT_SEED, rooms: int | None = None, frames: i
         if not set(REQUIRED) <= classes:
             continue
         v, q, obj, col = house.mb.finish()
-        # the home is laid out from (0, 0, 0); a seeded sub-metre shift keeps its walls and floor off
-        # the voxel lattice's faces, as in a real scan (a surface exactly on a face makes a tie of GT)
-        sx, sy, sz = _lattice_shift(v, q, np.random.default_rng([seed, SHIFT_STREAM]))
+        # the home is laid out from (0, 0, 0) and moved by a seeded (or the user's) offset: anywhere
+        # relative to the voxel lattice, planes exactly on a face included
+        shift = lattice_offset(seed) if offset is None else np.asarray(offset, dtype=np.float64)
+        sx, sy, sz = (float(x) for x in shift)
         v = v + np.array([sx, sy, sz])
         T = T.copy()
         T[:, :3, 3] += np.array([sx, sy, sz])
         return {"vertices": v, "quads": q, "face_object": obj, "colors": col,
                 "object_classes": list(house.mb.object_classes), "T_world_cam": T,
                 "rooms": [(r.x0 + sx, r.x1 + sx, r.y0 + sy, r.y1 + sy) for r in house.rooms],
-                "floor_z": float(sz), "ceiling_height": house.hc}
+                "floor_z": float(sz), "offset": np.array([sx, sy, sz]), "ceiling_height": house.hc}
     raise PanovoccError(f"could not lay out a {k}-room scene for seed {seed} (try another seed)")
 
 
@@ -976,11 +976,11 @@ def run_synth(cfg: SynthConfig) -> dict:
     from ..io.poses import write_poses
     from .replica import TRAJ_NAME, write_replica_scene
 
-    g = generate_scene(cfg.seed, cfg.rooms, cfg.frames)
+    g = generate_scene(cfg.seed, cfg.rooms, cfg.frames, cfg.offset)
     with atomic_dir(cfg.out) as tmp:
         write_replica_scene(tmp, g["vertices"], g["quads"], g["face_object"], g["colors"], g["object_classes"])
         write_poses(tmp / TRAJ_NAME, g["T_world_cam"])
     xy = g["T_world_cam"][:, :2, 3]
     return {"rooms": len(g["rooms"]), "faces": int(len(g["quads"])), "objects": len(g["object_classes"]),
             "classes": sorted({canonical_name(c) for c in g["object_classes"]}), "frames": len(xy),
-            "path_m": _length(xy)}
+            "path_m": _length(xy), "offset": [float(x) for x in g["offset"]]}

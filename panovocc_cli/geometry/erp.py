@@ -8,10 +8,15 @@ v = row) with centres at +0.5.
 * ray ``(cos phi sin theta, -sin phi, cos phi cos theta)``: the centre column looks along +z,
   moving right turns toward +x, column 0's left edge looks straight back;
 * depth is radial: a point is ``ray * depth``.
+
+The numba-callable helpers at the end (:func:`trig_tables`, :func:`cam_frame`, :func:`cam_point`) are
+the same formulas for compiled per-pixel loops (the mapper's kernel lift, noise fit and free-space
+test): one place where the ERP trigonometry is written.
 """
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
@@ -145,3 +150,44 @@ def local_frames(theta, phi) -> np.ndarray:
     e_t = np.stack([ct, np.zeros_like(theta), -st], axis=-1)
     e_p = np.stack([-sp * st, -cp, -sp * ct], axis=-1)
     return np.stack([e_t, e_p, e_r], axis=-1)
+
+
+# --------------------------------------------------------------------------------------------------
+# numba-callable helpers (compiled loops over pixels)
+# --------------------------------------------------------------------------------------------------
+
+@nb.njit(cache=True)
+def trig_tables(H, W):
+    """sin / cos of every ERP row's latitude and every column's longitude (pixel centres).
+
+    Returns
+    -------
+    sphi, cphi : (H,) float64, sin / cos of ``phi = pi / 2 - (v + 0.5) pi / H``
+    sth, cth : (W,) float64, sin / cos of ``theta = (u + 0.5) 2 pi / W - pi``
+    """
+    dth = 2.0 * np.pi / W
+    dph = np.pi / H
+    sphi, cphi = np.empty(H), np.empty(H)
+    for vv in range(H):
+        ph = 0.5 * np.pi - (vv + 0.5) * dph
+        sphi[vv], cphi[vv] = np.sin(ph), np.cos(ph)
+    sth, cth = np.empty(W), np.empty(W)
+    for uu in range(W):
+        th = (uu + 0.5) * dth - np.pi
+        sth[uu], cth[uu] = np.sin(th), np.cos(th)
+    return sphi, cphi, sth, cth
+
+
+@nb.njit(cache=True, inline="always")
+def cam_frame(sp, cp, st, ct, Ec):
+    """Fill ``Ec`` ((3, 3) float64) with the camera-frame columns e_theta, e_phi, e_ray of the pixel of
+    latitude sin / cos ``sp``, ``cp`` and longitude sin / cos ``st``, ``ct`` (:func:`local_frames`)."""
+    Ec[0, 0], Ec[1, 0], Ec[2, 0] = ct, 0.0, -st
+    Ec[0, 1], Ec[1, 1], Ec[2, 1] = -sp * st, -cp, -sp * ct
+    Ec[0, 2], Ec[1, 2], Ec[2, 2] = cp * st, -sp, cp * ct
+
+
+@nb.njit(cache=True, inline="always")
+def cam_point(r, sp, cp, st, ct):
+    """Camera-frame point (x, y, z) metres at radial depth ``r`` metres along the pixel's ray."""
+    return r * cp * st, -r * sp, r * cp * ct

@@ -26,6 +26,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..geometry.erp import trig_tables
+
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
 def _atan2(y, x):
@@ -104,15 +106,10 @@ def _free_thresholds(depth, Rt, h, eps_abs, eps_rel, stable_k, extent):
     H, W = depth.shape
     dth = 2.0 * np.pi / W
     dph = np.pi / H
-    st = np.empty(W)
-    ct = np.empty(W)
-    for col in range(W):
-        th_c = (col + 0.5) * dth - np.pi
-        st[col], ct[col] = np.sin(th_c), np.cos(th_c)
+    sphi, cphi, st, ct = trig_tables(H, W)
     fthr = np.empty((H, W))
     for row in nb.prange(H):
-        phi_c = 0.5 * np.pi - (row + 0.5) * dph
-        sp, cp = np.sin(phi_c), np.cos(phi_c)
+        sp, cp = sphi[row], cphi[row]
         cur, up, dn, out = depth[row], depth[max(row - 1, 0)], depth[min(row + 1, H - 1)], fthr[row]
         for col in (0, W - 1):  # the wrapping columns
             cl = col - 1 if col > 0 else W - 1

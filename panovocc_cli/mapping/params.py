@@ -27,7 +27,9 @@ class GeometryParams:
     max_range: float = 12.0  # metres; depths and voxels farther than this are ignored
     extent: str = "surfel"  # "surfel": kernel on the local surface plane, factor P(plane through the voxel box);
     # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
-    n_fill: float = 0.3  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
+    n_fill: float = 0.4  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
+    hit_k: float = 1.0  # surfel kernel: a measurement also counts in N for the voxels of x +- hit_k s n where
+    hit_max: float = 0.0005  # metres; ... s (the fitted position's std along n) <= hit_max: planes on a voxel face
     carve_extent: bool = True  # carve only voxels whose whole box lies in front of the observed local plane
     n_floor: float = 0.001  # metres; surfel kernel: floor of the scale along the normal
     c_min: float = 0.25  # surfel kernel: |cos incidence| floor of the in-plane footprint stretch
@@ -37,6 +39,7 @@ class GeometryParams:
     block_k: float = 2.0  # footprint plane fit accepted when its residual RMS <= block_k sigma_r + block_abs
     block_abs: float = 0.0005  # metres
     block_sel: float = 0.05  # footprint pixels within block_sel r + 4 sigma_r of its median depth are fitted
+    block_inverse: bool = True  # the footprint plane is fitted to inverse depth (unbiased on oblique planes)
     radial: str = "fit"  # radial kernel scale: "model" = alpha r + beta; "fit" = fitted to each frame's depth
     disc_k: float = 3.0  # surfel kernel: edge/corner if a sample is farther than disc_k (alpha r + beta) + edge_abs
     # from the line through its two neighbours (per image axis)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.erp import latitudes
+
 SIGMA0 = 0.0012  # metres
 SIGMA2 = 0.0019  # metres per metre^2
 SIGMA_GRAZE = 0.0001  # metres
@@ -80,7 +82,7 @@ def degrade(depth: np.ndarray, rgb: np.ndarray, incidence: np.ndarray, glass: np
     sigma = SIGMA0 + SIGMA2 * (out - 0.4) ** 2 + SIGMA_GRAZE * theta ** 2 / (np.pi / 2 - theta) ** 2
     out = out + sigma * rng.standard_normal((H, W))
     # 3. dropouts
-    lat = np.pi / 2 - (np.arange(H) + 0.5) * (np.pi / H)
+    lat = latitudes(H)
     p = P0 + P_POLE * np.abs(np.sin(lat))[:, None] ** 4 + P_GRAZE * np.clip(
         (np.degrees(incidence) - 70.0) / 18.0, 0.0, 1.0)
     drop = rng.random((H, W)) < p

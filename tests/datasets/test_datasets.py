@@ -116,8 +116,8 @@ def test_synth_trajectory_limits_and_clearance(synth_scene):
     lines = (synth_scene / "a" / "traj.txt").read_text().splitlines()
     assert len(lines) == 40 and all(len(l.split()) == 16 for l in lines)
     T = read_poses(synth_scene / "a" / "traj.txt")
-    floor = read_replica_scene(synth_scene / "a").vertices[:, 2].min()  # the home is shifted off the origin
-    assert 0.05 <= floor <= 0.95
+    floor = read_replica_scene(synth_scene / "a").vertices[:, 2].min()  # the home is moved by a seeded offset
+    assert 0.0 <= floor < 1.0
     z = T[:, 2, 3] - floor
     assert z.min() >= CAM_Z[0] and z.max() <= CAM_Z[1]
     pitch = np.degrees(np.arcsin(T[:, 2, 2]))  # camera z (forward) above the horizon
@@ -142,6 +142,40 @@ def test_synth_trajectory_limits_and_clearance(synth_scene):
 def test_synth_room_counts(rooms):
     g = generate_scene(seed=1, rooms=rooms, frames=20)
     assert len(g["rooms"]) == rooms and g["T_world_cam"].shape == (20, 4, 4)
+
+
+def test_synth_offset_is_uniform_in_millimetres_ties_included():
+    from panovocc_cli.datasets.synth import lattice_offset
+
+    off = np.array([lattice_offset(s) for s in range(4000)])  # (4000, 3) metres
+    mm = np.round(off * 1000.0)
+    assert np.allclose(off * 1000.0, mm) and mm.min() >= 0 and mm.max() <= 999
+    k = (mm % 80).astype(int)  # millimetres above a face of the 8 cm lattice
+    assert (k == 0).mean() > 0.5 / 80  # exact ties are drawn (1 in 80 expected): no clearance rule
+    near = np.minimum(k, 80 - k) <= 3  # within 3 mm of a face
+    assert 0.06 < near.mean() < 0.12  # 7 / 80 = 8.75 % expected
+    counts = np.bincount(k.ravel(), minlength=80)
+    assert counts.min() > 0.6 * counts.mean() and counts.max() < 1.4 * counts.mean()
+
+
+def test_synth_explicit_offset_moves_the_same_home():
+    a = generate_scene(seed=1, rooms=1, frames=20, offset=(0.0, 0.0, 0.0))
+    b = generate_scene(seed=1, rooms=1, frames=20, offset=(0.25, -0.5, 0.002))
+    assert a["floor_z"] == 0.0 and b["floor_z"] == 0.002
+    np.testing.assert_allclose(b["vertices"] - a["vertices"], np.broadcast_to([0.25, -0.5, 0.002], a["vertices"].shape),
+                               atol=1e-12)
+    np.testing.assert_allclose(b["T_world_cam"][:, :3, 3] - a["T_world_cam"][:, :3, 3],
+                               np.broadcast_to([0.25, -0.5, 0.002], (20, 3)), atol=1e-12)
+    assert np.array_equal(a["quads"], b["quads"])
+
+
+@pytest.mark.parametrize("text", ["1,2", "a,b,c", "0,0,nan", "1,2,3,4"])
+def test_synth_bad_offset(text):
+    from panovocc_cli.datasets.synth import parse_offset
+
+    with pytest.raises(PanovoccError, match="--offset"):
+        parse_offset(text)
+    assert parse_offset("0.1, -2,3e-3") == (0.1, -2.0, 0.003)
 
 
 def test_synth_bad_rooms():

@@ -6,7 +6,7 @@ import pytest
 from box_room import HI, LO, box_depth, turned_pose
 
 from panovocc_cli.errors import PanovoccError
-from panovocc_cli.mapping.contributors import _extract, frame_box
+from panovocc_cli.mapping.psvf.update import _extract, frame_box
 from panovocc_cli.mapping.freespace import carve
 
 EPS_ABS, EPS_REL, STABLE_K, MIN_R, MAX_R = 0.07, 0.01, 2.0, 0.1, 12.0
@@ -120,7 +120,7 @@ def test_process_settings_for_the_shared_cores():
     import subprocess
     import sys
 
-    from panovocc_cli.mapping import contributors, psvf
+    from panovocc_cli.mapping.psvf import noise_fit, update
 
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     code = "import os, panovocc_cli; print(os.environ['OMP_WAIT_POLICY'])"
@@ -130,13 +130,13 @@ def test_process_settings_for_the_shared_cores():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "active"
     if sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION"):
-        assert contributors.keep_freed_heap()
+        assert update.keep_freed_heap()
     rng = np.random.default_rng(0)
     r = rng.uniform(0.2, 5.0, 4000)
     res2 = rng.exponential(1e-6, 4000)
     cinc = rng.uniform(0.3, 1.0, 4000)
     edges = np.arange(0.1, 12.5, 0.5)
-    centres, qs, counts = psvf._binned_quantiles(r, res2, cinc, 0.3, edges, 0.25, 50)
+    centres, qs, counts = noise_fit._binned_quantiles(r, res2, cinc, 0.3, edges, 0.25, 50)
     for c, q, n in zip(centres, qs, counts):
         sel = (r >= c - 0.25) & (r < c + 0.25)
         v = np.sort(res2[sel] / cinc[sel] ** 2)

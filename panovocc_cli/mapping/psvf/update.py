@@ -1,0 +1,236 @@
+"""The per-frame update: one ERP frame (depth, pose) to its sparse geometric delta (A, N, F, O).
+
+1. lift the strided samples to kernels (:mod:`.surfel`, or :mod:`.rays` for the ``box`` / ``centre``
+   extents and the ``point`` ablation);
+2. the frame box: the lattice box that holds the camera and every kernel's support;
+3. splat the kernels into a dense support grid A (:mod:`.splat`);
+4. free space F and valid comparisons O (:mod:`..freespace`);
+5. N: the voxels that hold a measurement (with the surfel kernel, also those within ``hit_k`` s_n of
+   it along the normal: a plane on a voxel face counts in both voxels), or where A >= ``n_fill``;
+6. extraction of the voxels with support, a measurement or a comparison, in lattice order.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ...errors import PanovoccError
+from ..freespace import carve
+from ..memory import FIXED_SCALE, Delta
+from ..params import GeometryParams
+from .rays import lift_kernels
+from .splat import local_voxel, splat, splat_axis
+from .surfel import surfels_for
+
+MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
+
+# glibc malloc: keep freed memory in the process. A frame's update allocates ~20 MB of temporaries
+# (kernels, the dense support / free-space grids, the delta) and frees them; by default glibc hands
+# the top of its heap back to the kernel once over 2x its mmap threshold is free, so every frame
+# faulted ~4200 fresh pages back in. On the 2-core machine under load that made the update 22-130
+# ms/frame instead of 9-10 (same bytes). A fixed mmap threshold of 32 MiB (the default's ceiling)
+# and a 256 MiB trim threshold keep the pages; the process keeps its peak heap (about one frame's).
+HEAP_TRIM_BYTES = 256 * 2 ** 20
+HEAP_MMAP_BYTES = 32 * 2 ** 20
+
+
+def keep_freed_heap() -> bool:
+    """Set glibc's ``M_TRIM_THRESHOLD`` / ``M_MMAP_THRESHOLD`` (see above) once per process; False
+    where the C library is not glibc (nothing changed)."""
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(-1, HEAP_TRIM_BYTES)) and bool(libc.mallopt(-3, HEAP_MMAP_BYTES))
+    except (OSError, AttributeError):
+        return False
+
+
+keep_freed_heap()
+
+
+@nb.njit(cache=True)
+def _mark_hits(x, h, lo, hits):
+    """Set ``hits`` (uint8 frame grid) to 1 in the voxels that contain a measurement x (metres, world)."""
+    for p in range(x.shape[0]):
+        i, j, k, inside = local_voxel(x, p, h, lo, hits.shape)
+        if inside:
+            hits[i, j, k] = 1
+
+
+@nb.njit(cache=True)
+def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, h, lo, hits):
+    """Set ``hits`` to 1 in the voxels that contain a measurement x and, for a precise surfel (``surf`` 1,
+    ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position along the
+    normal), in those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
+    measurement that close to a voxel face counts as a view of both voxels of the face. Imprecise
+    measurements fall on both sides of a face by their own noise and are not spread."""
+    nx, ny, nz = hits.shape
+    for p in range(x.shape[0]):
+        s = max(sa[p] - n_floor, 0.0) if surf[p] != 0 else 0.0
+        s = k * s if s <= s_max else 0.0
+        for e in range(3):
+            f = s * (e - 1)
+            i = int(np.floor((x[p, 0] + f * ax[p, 0]) / h)) - lo[0]
+            j = int(np.floor((x[p, 1] + f * ax[p, 1]) / h)) - lo[1]
+            kk = int(np.floor((x[p, 2] + f * ax[p, 2]) / h)) - lo[2]
+            if 0 <= i < nx and 0 <= j < ny and 0 <= kk < nz:
+                hits[i, j, kk] = 1
+
+
+@nb.njit(cache=True, inline="always")
+def _voxel_row(a, hit, o, scale, n_fill):
+    """A voxel's fixed-point support, its frame count (a measurement inside, or support >= n_fill) and
+    whether it enters the delta (support, a measurement or a valid comparison)."""
+    q = np.int64(np.rint(a * scale))
+    n = 1 if (hit != 0 or q >= n_fill) else 0
+    return q, n, o != 0 or q != 0 or n != 0
+
+
+@nb.njit(cache=True, parallel=True)
+def _extract(A, hits, F, O, lo, scale, n_fill):
+    """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support, a
+    measurement or O != 0. Two passes over slabs of constant i (count, then fill at each slab's prefix
+    offset)."""
+    nx, ny, nz = A.shape
+    counts = np.zeros(nx + 1, np.int64)
+    for i in nb.prange(nx):
+        c = 0
+        for j in range(ny):
+            for k in range(nz):
+                if _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)[2]:
+                    c += 1
+        counts[i + 1] = c
+    for i in range(nx):
+        counts[i + 1] += counts[i]
+    cnt = counts[nx]
+    keys = np.empty(cnt, np.int64)
+    out = np.empty((cnt, 4), np.int64)
+    off = 1 << 20
+    for i in nb.prange(nx):
+        n = counts[i]
+        ki = (i + lo[0] + off) << 42
+        for j in range(ny):
+            kj = ki | ((j + lo[1] + off) << 21)
+            for k in range(nz):
+                a, nn, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)
+                if keep:
+                    keys[n] = kj | (k + lo[2] + off)
+                    out[n, 0] = a
+                    out[n, 1] = nn
+                    out[n, 2] = F[i, j, k]
+                    out[n, 3] = O[i, j, k]
+                    n += 1
+    return keys, out
+
+
+@nb.njit(cache=True)
+def _kernel_bounds(x, half, kappa):
+    """Per-axis min of x - kappa half and max of x + kappa half over the kernels (same values as numpy)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for p in range(x.shape[0]):
+        for d in range(3):
+            lo[d] = min(lo[d], x[p, d] - kappa * half[p, d])
+            hi[d] = max(hi[d], x[p, d] + kappa * half[p, d])
+    return lo, hi
+
+
+def frame_box(x_world, half, kappa, cam_pos, voxel_size: float, max_range: float):
+    """Lattice box covering the camera and every kernel's bounding box, cut at max_range.
+
+    Parameters
+    ----------
+    x_world : (n, 3) float64, kernel centres, metres, world frame
+    half : (n, 3) float64, per-axis half extents of the kernels' support, metres
+    kappa : float, factor on ``half``
+    cam_pos : (3,) float64, camera centre, metres, world frame
+
+    Returns
+    -------
+    lo : (3,) int64, lattice index of the box's first voxel; shape : (3,) int64, voxels per axis
+    """
+    h = voxel_size
+    if len(x_world):
+        kmin, kmax = _kernel_bounds(np.ascontiguousarray(x_world, np.float64), np.ascontiguousarray(half, np.float64),
+                                    float(kappa))
+        pmin = np.minimum(kmin, cam_pos)
+        pmax = np.maximum(kmax, cam_pos)
+    else:
+        pmin = pmax = cam_pos
+    pmin = np.maximum(pmin, cam_pos - max_range)
+    pmax = np.minimum(pmax, cam_pos + max_range)
+    lo = np.floor(pmin / h).astype(np.int64) - 1
+    hi = np.floor(pmax / h).astype(np.int64) + 1
+    return lo, hi - lo + 1
+
+
+def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams) -> Delta:
+    """One ERP frame's geometric delta (A fixed point, N, F, O) on the global lattice.
+
+    Parameters
+    ----------
+    depth : (H, W) float32, metres, radial, 0 = invalid
+    T_world_cam : (4, 4) float64
+
+    Returns
+    -------
+    Delta with channels A (fixed point, FIXED_SCALE), N (0/1: a measurement of the frame lies in the
+    voxel, or, for psvf, its kernel support there is at least ``n_fill``), F (0/1), O (0/1)
+    """
+    if p.kernel not in ("psvf", "point"):
+        raise PanovoccError(f"unknown kernel {p.kernel!r} (expected psvf or point)")
+    c_norm = 1.0 / (2.0 * np.pi) if p.kernel == "psvf" else 1.0
+    if p.extent not in ("box", "centre", "surfel"):
+        raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected surfel, box or centre)")
+    if p.kernel == "psvf" and p.extent == "surfel":
+        x, Pt, half, w, ax, sa, bb, surf = surfels_for(depth, T_world_cam, p, c_norm)
+        lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
+        _check_box(shape)
+        A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
+        return _finish(A, x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
+    x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
+                                 p.w_pole, p.r_half, c_norm)
+    er = sr = None
+    kern = p.kernel
+    box_half = half
+    if p.kernel == "point":
+        box_half = half = np.full_like(half, p.voxel_size)
+    elif p.extent == "box":
+        v = x - T_world_cam[:3, 3]
+        rr = np.sqrt((v * v).sum(1))
+        er = v / rr[:, None]  # ray directions (world)
+        sr = p.alpha * rr + p.beta  # radial scales
+        kern = "box"
+        box_half = half + 0.5 * p.voxel_size * np.abs(er) / p.kappa  # the splat's reach includes the chord
+    lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
+    _check_box(shape)
+    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
+    return _finish(A, x, depth, T_world_cam, p, lo, shape)
+
+
+def _check_box(shape) -> None:
+    if int(np.prod(shape)) > MAX_FRAME_VOXELS:
+        raise PanovoccError(f"a frame spans {shape.tolist()} voxels (over {MAX_FRAME_VOXELS}); "
+                            "lower --max-range or raise --voxel-size")
+
+
+def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
+    """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
+    its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
+    kernel's ``surfels`` = (axes (n, 3), scales (n,) metres, surfel flags (n,) uint8), so do the voxels
+    that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max)."""
+    F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
+                 p.min_range, p.max_range, p.carve_extent)
+    hits = np.zeros(A.shape, np.uint8)
+    if surfels is not None and p.hit_k > 0:
+        ax, sa, surf = surfels
+        _mark_hits_axis(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(ax, np.float64),
+                        np.ascontiguousarray(sa, np.float64), np.ascontiguousarray(surf), float(p.n_floor),
+                        float(p.hit_k), float(p.hit_max), float(p.voxel_size), np.asarray(lo, np.int64), hits)
+    else:
+        _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
+    n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
+    keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill)
+    return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})
