@@ -36,7 +36,7 @@ $(STAMP): pyproject.toml Makefile
 	touch $(STAMP)
 
 demo: setup
-	$(BIN)/panovocc demo $(DEMO)
+	$(BIN)/panovocc demo --overwrite $(DEMO)
 
 test: setup
 	$(BIN)/python -m pytest -q -p no:cacheprovider tests

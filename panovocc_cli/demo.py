@@ -32,6 +32,25 @@ class DemoConfig:
     width: int = 1024
     noise: str = "none"
     progress: bool = True
+    overwrite: bool = False  # replace a previous demo's outputs in ``out`` (only a folder a demo wrote)
+
+
+def check_demo_config(cfg: DemoConfig) -> None:
+    """Refuse bad option values before any stage runs or writes (:class:`PanovoccError`)."""
+    from .config import MIN_WIDTH
+    from .errors import PanovoccError
+    from .geometry.erp import check_erp_size
+    from .rendering.render import NOISE_MODELS
+
+    if cfg.seed < 0:
+        raise PanovoccError(f"--seed must be >= 0, got {cfg.seed}")
+    if cfg.frames < 2:
+        raise PanovoccError(f"--frames must be at least 2, got {cfg.frames}")
+    if cfg.width < MIN_WIDTH:
+        raise PanovoccError(f"--width must be at least {MIN_WIDTH}, got {cfg.width}")
+    check_erp_size(cfg.width)
+    if cfg.noise not in NOISE_MODELS:
+        raise PanovoccError(f"unknown noise model {cfg.noise!r} (expected one of {', '.join(NOISE_MODELS)})")
 
 
 def _stage(name: str, fn: Callable[[], object], timings: dict[str, float], log) -> object:
@@ -51,13 +70,18 @@ def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
     from .mapping.pipeline import MapConfig, run_map
     from .rendering.render import RenderConfig, run_render
 
+    from .io.atomic import check_output
+
+    check_demo_config(cfg)
     out = Path(cfg.out)
+    check_output(out, "demo", cfg.overwrite)  # the stages below replace only what a demo wrote in ``out``
     scene, seq, gt, mapped = out / "scene", out / "seq", out / "gt.npz", out / "map"
     t: dict[str, float] = {}
     _stage("synth", lambda: run_synth(SynthConfig(out=scene, seed=cfg.seed, frames=cfg.frames)), t, log)
-    _stage("gt", lambda: run_gt(GtConfig(scene=scene, out=gt)), t, log)
+    _stage("gt", lambda: run_gt(GtConfig(scene=scene, out=gt, overwrite=True)), t, log)
     _stage("render", lambda: run_render(RenderConfig(scene=scene, out=seq, width=cfg.width, noise=cfg.noise,
-                                                     seed=cfg.seed, progress=cfg.progress)), t, log)
+                                                     seed=cfg.seed, progress=cfg.progress,
+                                                     overwrite=True)), t, log)
     _stage("map", lambda: run_map(MapConfig(seq=str(seq), out=str(mapped)), overwrite=True,
                                   progress=cfg.progress), t, log)
     pred = mapped / "prediction.npz"

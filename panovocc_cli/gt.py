@@ -136,6 +136,48 @@ def voxel_areas(q, faces, face_class):
     return ijk[:cnt], cls[:cnt], area[:cnt]
 
 
+BYTES_PER_PIECE = 120  # voxel_areas' records (36 B, grown by doubling) and the per-voxel vote arrays after it
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (``MemAvailable`` of /proc/meminfo; else physical)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62
+
+
+def gt_memory_estimate(scene, voxel_size: float) -> tuple[tuple[int, int, int], int]:
+    """Grid shape and bytes :func:`voxelize_scene` would need at ``voxel_size`` metres, before allocating.
+
+    The dense uint8 grid over the scene's bounds, plus about ``BYTES_PER_PIECE`` per (triangle, voxel)
+    piece; a triangle of area a crosses about 2 a / h^2 + 1 voxels.
+    """
+    lo, hi = scene.bounds
+    shape = tuple(int(np.floor(x)) + 2 for x in (hi - lo) / voxel_size)
+    cells = float(np.prod(np.asarray(shape, dtype=np.float64)))
+    pieces = 2.0 * float(scene.triangle_areas().sum()) / voxel_size ** 2 + len(scene.faces)
+    return shape, int(min(cells + BYTES_PER_PIECE * pieces, 2.0 ** 62))
+
+
+def check_gt_memory(scene, voxel_size: float) -> None:
+    """Refuse a voxel size whose grid cannot fit in the memory available now (one line with the size needed)."""
+    shape, need = gt_memory_estimate(scene, voxel_size)
+    have = available_memory()
+    if need > 0.8 * have:
+        raise PanovoccError(f"--voxel-size {voxel_size:g} m needs a {shape[0]}x{shape[1]}x{shape[2]} grid and about "
+                            f"{need / 2 ** 30:.1f} GiB of memory; {have / 2 ** 30:.1f} GiB is available: choose a "
+                            "larger voxel size")
+
+
 def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:
     """Voxelise a :class:`~panovocc_cli.datasets.scene.Scene`'s surface on the global lattice.
 
@@ -155,6 +197,7 @@ def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:
     if len(scene.class_names) > OCCUPIED_UNKNOWN_CLASS:
         raise PanovoccError(f"scene has {len(scene.class_names)} classes; a uint8 grid holds at most 253")
     h = float(voxel_size)
+    check_gt_memory(scene, h)
     q = scene.vertices / h + BOUNDARY_EPS
     ijk, cls, area = voxel_areas(q, scene.faces, scene.face_class)
     lo, hi = scene.bounds
@@ -185,18 +228,21 @@ def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:
 
 @dataclass
 class GtConfig:
-    """Options of ``panovocc gt``: scene (Replica-format folder), out (.npz), voxel_size (metres)."""
+    """Options of ``panovocc gt``: scene (Replica-format folder), out (.npz), voxel_size (metres), overwrite."""
 
     scene: Path
     out: Path
     voxel_size: float = DEFAULT_VOXEL_SIZE
+    overwrite: bool = False  # replace an existing OUT file
 
 
 def run_gt(cfg: GtConfig) -> dict:
     """Voxelise ``cfg.scene`` and write the grid ``.npz``; returns a summary dict."""
-    from .datasets.replica import read_replica_scene
+    from .datasets.replica import read_replica_scene, scene_files
+    from .io.atomic import check_output
     from .io.grid import write_grid
 
+    check_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.scene, *scene_files(cfg.scene)), folder=False)
     scene = read_replica_scene(cfg.scene)
     grid = voxelize_scene(scene, cfg.voxel_size)
     write_grid(cfg.out, grid)

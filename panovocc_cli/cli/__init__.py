@@ -6,6 +6,7 @@ matplotlib) are imported inside the command that needs them, so ``--help`` is in
 
 from __future__ import annotations
 
+import os
 import sys
 
 import typer
@@ -30,12 +31,17 @@ def version() -> None:
     typer.echo(__version__)
 
 
+def _printable(text: str) -> str:
+    """A message with any undecodable path bytes (surrogate escapes) shown as backslash escapes, never an encoding error."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: expected failures print one line and exit 2; others keep their traceback."""
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
     except PanovoccError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_printable(str(e))}", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
     except click.exceptions.ClickException as e:
         e.show()
@@ -43,6 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     except (typer.Abort, getattr(click.exceptions, "Abort", typer.Abort)):
         print("aborted", file=sys.stderr)
         sys.exit(130)
+    except OSError as e:  # disk full, read-only file system, a path the OS refuses: one line naming it
+        where = e.filename if e.filename is not None else "?"
+        print(_printable(f"error: {os.fsdecode(where) if isinstance(where, bytes) else where}: {e.strerror or e}"),
+              file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         sys.exit(130)

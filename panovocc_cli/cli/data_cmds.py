@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, DEFAULT_WIDTH
+from ..errors import PanovoccError
 from ._app import app
 
 
@@ -21,10 +22,16 @@ def synth(
     offset: Optional[str] = typer.Option(None, "--offset", help="X,Y,Z metres: move the home (laid out from the "
                                                                 "origin) by this offset instead of the seeded one "
                                                                 "(e.g. 0,0,0 puts the floor on a voxel face)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous panovocc scene in SCENE (never "
+                                                             "any other folder)."),
 ) -> None:
     """Write a procedural multi-room indoor scene in Replica's format, with a trajectory through every room."""
     from ..datasets.synth import SynthConfig, parse_offset, run_synth
+    from ..io.atomic import check_output
 
+    if seed < 0:
+        raise PanovoccError(f"--seed must be >= 0, got {seed}")
+    check_output(scene, "scene", overwrite)
     s = run_synth(SynthConfig(out=scene, seed=seed, rooms=rooms, frames=frames,
                               offset=None if offset is None else parse_offset(offset)))
     typer.echo(f"{scene}: {s['rooms']} rooms, {s['faces']} quads, {s['objects']} objects, "
@@ -45,12 +52,14 @@ def render(
                                                       "dropouts, no depth on glass, edge bleeding."),
     seed: int = typer.Option(DEFAULT_SEED, "--seed", help="Noise seed."),
     threads: int = typer.Option(0, "--threads", help="Ray-casting threads (0 = all cores)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous panovocc sequence in SEQ (never "
+                                                             "any other folder, never an input)."),
 ) -> None:
     """Render a panoramic RGB-D sequence (RGB, radial depth in mm, class labels) along a trajectory."""
     from ..rendering.render import RenderConfig, run_render
 
     s = run_render(RenderConfig(scene=scene, out=seq, traj=traj, width=width, backend=backend, every=every,
-                                noise=noise, seed=seed, threads=threads))
+                                noise=noise, seed=seed, threads=threads, overwrite=overwrite))
     typer.echo(f"{seq}: {s['frames']} frames {s['width']}x{s['height']} in {s['seconds']:.1f} s "
                f"({s['ms_per_frame']:.0f} ms/frame), valid depth {100 * s['valid_depth']:.1f}%")
 
@@ -60,10 +69,11 @@ def gt(
     scene: Path = typer.Argument(..., help="Replica-format scene folder."),
     out: Path = typer.Argument(..., help="Ground-truth grid to write (.npz: labels, origin, voxel_size, class_names)."),
     voxel_size: float = typer.Option(DEFAULT_VOXEL_SIZE, "--voxel-size", help="Voxel edge length in metres."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT file (never an input)."),
 ) -> None:
     """Voxelise the scene's mesh surface on the global lattice (area-vote class per voxel)."""
     from ..gt import GtConfig, run_gt
 
-    s = run_gt(GtConfig(scene=scene, out=out, voxel_size=voxel_size))
+    s = run_gt(GtConfig(scene=scene, out=out, voxel_size=voxel_size, overwrite=overwrite))
     typer.echo(f"{out}: grid {s['shape'][0]}x{s['shape'][1]}x{s['shape'][2]} at {s['voxel_size']} m, "
                f"{s['occupied']} occupied voxels, {s['classes']} classes")

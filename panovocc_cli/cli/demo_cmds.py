@@ -16,12 +16,14 @@ def demo(
     frames: int = typer.Option(60, "--frames", min=1, help="Number of trajectory poses (frames)."),
     width: int = typer.Option(1024, "--width", help="ERP width in pixels (even; height = width / 2)."),
     noise: str = typer.Option("none", "--noise", help="Depth noise of the render: none | realistic."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous demo's outputs in OUT (never any "
+                                                             "other folder)."),
 ) -> None:
     """Render, map and evaluate the embedded default scene end to end, then print the score table."""
     from ..demo import DemoConfig, run_demo
     from ..evaluation.run import format_report
 
-    res = run_demo(DemoConfig(out=out, seed=seed, frames=frames, width=width, noise=noise))
+    res = run_demo(DemoConfig(out=out, seed=seed, frames=frames, width=width, noise=noise, overwrite=overwrite))
     typer.echo("")
     typer.echo(format_report(res["scores"]))
     typer.echo("")

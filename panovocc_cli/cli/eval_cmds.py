@@ -30,6 +30,8 @@ def eval_cmd(
     mask: str = typer.Option("freeocc", "--mask", help="Mask for the --json top level: freeocc (headline) | observed."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (scores in percent) instead of a table."),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for scores.csv/.md/.tex, counts.csv, scores.json."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous eval output in --out (never any "
+                                                             "other folder)."),
 ) -> None:
     """Score predictions against ground truth (FreeOcc protocol: IoU, per-class IoU, mIoU, percent).
 
@@ -42,6 +44,10 @@ def eval_cmd(
     all_pairs = parse_pair_tokens(paths or [])
     if pairs is not None:
         all_pairs += read_pairs_csv(pairs)
+    if out is not None:
+        from ..io.atomic import check_output
+
+        check_output(out, "eval", overwrite, inputs=[p for pair in all_pairs for p in pair] + [pairs])
     cfg = EvalConfig(pairs=all_pairs, classes=classes, mask=mask.strip().lower(), out_dir=out)
     res = run_eval(cfg)
     if as_json:
@@ -86,10 +92,14 @@ def coverage_cmd(
     every: int = typer.Option(1, "--every", help="Use every K-th frame (the last frame is always used)."),
     tol_m: float = typer.Option(0.01, "--tol-m", help="Metres: a depth point this close to a voxel face also "
                                                       "observes the voxel across it."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous coverage output in --out (never "
+                                                             "any other folder)."),
 ) -> None:
     """Fraction of GT occupied voxels observed so far, panorama vs. forward perspective camera (Fig. 5)."""
     from ..evaluation.run import CoverageConfig, run_coverage
+    from ..io.atomic import check_output
 
+    check_output(out, "coverage", overwrite, inputs=(seq, gt))
     cfg = CoverageConfig(seq=seq, gt=gt, out_dir=out, hfov_deg=fov_deg, vfov_deg=vfov_deg, aspect=aspect,
                          every=every, tol_m=tol_m)
     r = run_coverage(cfg)
@@ -108,12 +118,16 @@ def show_cmd(
     cut_top: int = typer.Option(0, "--cut-top", help="Remove the top K voxel layers (to look into rooms)."),
     titles: Optional[str] = typer.Option(None, "--titles", help="Comma-separated panel titles, one per grid."),
     width_px: int = typer.Option(1600, "--width-px", help="PNG width in pixels."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT.png (never an input)."),
 ) -> None:
     """Render semantic occupancy grids as a picture (paper class colours, legend of classes present)."""
     from ..evaluation.run import ShowConfig, run_show
 
     if len(paths) < 2:
         raise PanovoccError("expected GRID.npz [GRID2.npz ...] OUT.png")
+    from ..io.atomic import check_output
+
+    check_output(paths[-1], "picture", overwrite, inputs=paths[:-1], folder=False)
     cfg = ShowConfig(grids=list(paths[:-1]), out_png=paths[-1], cut_top=cut_top,
                      titles=[t.strip() for t in titles.split(",")] if titles else None, width_px=width_px)
     h, w = run_show(cfg)
@@ -133,10 +147,14 @@ def convert_replicaocc_cmd(
     tol_m: Optional[float] = typer.Option(None, "--tol-m", help="Metres a centre may be off the lattice "
                                                                 "(default: a quarter voxel)."),
     allow_shift: bool = typer.Option(False, "--allow-shift", help="Translate an off-lattice grid onto the lattice."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT_NPZ (never an input)."),
 ) -> None:
     """ReplicaOcc .pkl (scene_dim, global_labels, global_pts[, global_mask]) -> grid .npz."""
     from ..evaluation.run import ConvertReplicaOccConfig, run_convert_replicaocc
+    from ..io.atomic import check_output
 
+    names_file = Path(class_names) if class_names and "," not in class_names else None
+    check_output(out_npz, "grid", overwrite, inputs=(pkl, names_file), folder=False)
     g, shift, names_from = run_convert_replicaocc(
         ConvertReplicaOccConfig(pkl, out_npz, class_names, voxel_size, tol_m, allow_shift))
     occ = int(((g.labels != 0) & (g.labels != 255)).sum())
@@ -157,9 +175,13 @@ def convert_to_replicaocc_cmd(
                                          "scripts count every label > 0 as occupied."),
     like: Optional[Path] = typer.Option(None, "--like", help="Ground-truth grid .npz whose voxels to write (FreeOcc "
                                                              "compares arrays index by index)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT_PKL (never an input)."),
 ) -> None:
     """Grid .npz -> ReplicaOcc .pkl that FreeOcc's load_full_scene_occ reads (voxel_size, class_names keys added)."""
     from ..evaluation.run import ConvertToReplicaOccConfig, run_convert_to_replicaocc
+    from ..io.atomic import check_output
+
+    check_output(out_pkl, "pickle", overwrite, inputs=(grid, like), folder=False)
 
     g, unmatched = run_convert_to_replicaocc(ConvertToReplicaOccConfig(grid, out_pkl, ids.strip().lower(),
                                                                        prediction, like))

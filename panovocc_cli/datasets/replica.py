@@ -38,6 +38,15 @@ def scene_paths(scene: str | Path) -> tuple[Path, Path]:
     return p / MESH_PATH, p / INFO_PATH
 
 
+def scene_files(scene: str | Path) -> tuple[Path, ...]:
+    """The files a scene's reader opens (for the output guard: never write over them); () when ``scene``
+    is not a scene folder."""
+    try:
+        return scene_paths(scene)
+    except PanovoccError:
+        return ()
+
+
 def _load_info(path: Path) -> tuple[dict[int, str], dict[int, str]]:
     """Class names by class id and class names by object id (raw, not canonical)."""
     info = read_json(path, "Replica's info_semantic.json")
@@ -45,6 +54,12 @@ def _load_info(path: Path) -> tuple[dict[int, str], dict[int, str]]:
         raise PanovoccError("expected a JSON object with a 'classes' list of {id, name}", path)
     try:
         classes = {int(c["id"]): str(c["name"]) for c in info["classes"]}
+        if len(classes) != len(info["classes"]):
+            raise PanovoccError("'classes' lists the same id twice", path)
+        raw = [str(c["name"]) for c in info["classes"]]
+        dup = sorted({n for n in raw if raw.count(n) > 1})
+        if dup:
+            raise PanovoccError(f"'classes' has duplicate names {dup}; each class id needs its own name", path)
         obj_class: dict[int, str] = {}
         for o in info.get("objects", []) or []:
             name = o.get("class_name")
@@ -111,6 +126,9 @@ def read_replica_scene(folder: str | Path) -> Scene:
     for k in sorted(classes):
         cid(classes[k])
     obj_ids = np.asarray(mesh.face["object_id"]).astype(np.int64)
+    if obj_class and len(obj_ids) and obj_ids.max() > max(obj_class):
+        raise PanovoccError(f"face object_id {int(obj_ids.max())} is beyond the objects of {info_path.name} "
+                            f"(largest id {max(obj_class)})", ply_path)
     uniq = np.unique(obj_ids)
     lut_c = np.array([cid(obj_class.get(int(o), UNLABELED)) for o in uniq], dtype=np.int32)
 

@@ -17,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..config import MAX_PICTURE_PX
 from ..errors import PanovoccError
 from ..io.atomic import check_output_path, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
@@ -214,6 +215,7 @@ def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
     seq = Sequence(cfg.seq)
     if seq.meta.camera != "erp":
         raise PanovoccError("coverage needs a panoramic (ERP) sequence; this one is pinhole", cfg.seq)
+    seq.check_files(("depth",))  # every depth frame present and whole before any work
     gt = read_grid(cfg.gt)
     if not 0 < cfg.hfov_deg < 180 or (cfg.vfov_deg is not None and not 0 < cfg.vfov_deg < 180):
         raise PanovoccError("fields of view must be in (0, 180) degrees")
@@ -262,8 +264,8 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
         raise PanovoccError("no grids to show")
     if cfg.titles is not None and len(cfg.titles) != len(cfg.grids):
         raise PanovoccError(f"{len(cfg.titles)} titles for {len(cfg.grids)} grids")
-    if cfg.width_px < 64:
-        raise PanovoccError(f"--width-px must be >= 64, got {cfg.width_px}")
+    if not 64 <= cfg.width_px <= MAX_PICTURE_PX:
+        raise PanovoccError(f"--width-px must be in [64, {MAX_PICTURE_PX}], got {cfg.width_px}")
     if cfg.out_png.suffix.lower() != ".png":
         raise PanovoccError("output must be a .png file", cfg.out_png)
     check_output_path(cfg.out_png, folder=False)

@@ -9,6 +9,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from ..errors import PanovoccError
+
 
 def _umask() -> int:
     mask = os.umask(0)
@@ -28,15 +30,20 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     The temporary name keeps the target's suffix (libraries choose formats by it).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix if suffix is not None else path.suffix,
-                               dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix if suffix is not None else path.suffix,
+                                   dir=path.parent)
+    except OSError as e:
+        raise PanovoccError(f"cannot write ({e.strerror or e})", path) from None
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
         _publish_mode(tmp_path, 0o666)
         os.replace(tmp_path, path)
+    except OSError as e:  # disk full, read-only file system, permissions: one line naming the target
+        raise PanovoccError(f"cannot write ({e.strerror or e}); nothing was changed", path) from None
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
@@ -46,8 +53,11 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 def atomic_dir(path: str | Path, overwrite: bool = True) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path`` whole."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    except OSError as e:
+        raise PanovoccError(f"cannot write ({e.strerror or e})", path) from None
     try:
         yield tmp
         _publish_mode(tmp, 0o777)
@@ -60,6 +70,8 @@ def atomic_dir(path: str | Path, overwrite: bool = True) -> Iterator[Path]:
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
+    except OSError as e:
+        raise PanovoccError(f"cannot write ({e.strerror or e}); nothing was changed", path) from None
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -141,3 +153,106 @@ def write_text(path: str | Path, text: str) -> None:
     """Atomically write a text file (UTF-8)."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+# ---------------------------------------------------------------------------------------------
+# Output guard: no command deletes or overwrites what it did not create.
+
+#: A folder is a panovocc output of a kind when it holds one of these files (relative paths).
+OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
+    "scene": ("habitat/info_semantic.json", "habitat/mesh_semantic.ply"),
+    "sequence": ("meta.json",),
+    "map": ("config.json",),
+    "eval": ("scores.json", "scores.csv", "counts.csv"),
+    "coverage": ("coverage.csv",),
+    "demo": ("scene/habitat/info_semantic.json", "seq/meta.json", "gt.npz", "map/config.json"),
+}
+
+#: Hidden files a panovocc writer may leave in a folder it owns (a lock, atomic-write temporaries).
+IGNORED_IN_EMPTY = (".lock",)
+
+
+def _resolved(p: str | Path) -> Path:
+    return Path(os.path.abspath(os.fspath(p)))
+
+
+def _is_within(inner: Path, outer: Path) -> bool:
+    return inner == outer or outer in inner.parents
+
+
+def is_output_of_kind(path: str | Path, kind: str) -> bool:
+    """Whether the folder ``path`` holds a marker file of a panovocc output of ``kind`` (see OUTPUT_MARKERS)."""
+    path = Path(path)
+    return any((path / m).is_file() for m in OUTPUT_MARKERS[kind])
+
+
+def check_output(path: str | Path, kind: str, overwrite: bool = False, inputs=(), folder: bool = True) -> None:
+    """Refuse an output that would delete or overwrite what the command did not create.
+
+    Rules (README, "Behaviour you can rely on"):
+
+    - an output never equals an input, and a folder output never contains one (replacing it would
+      delete the input), with or without ``--overwrite``;
+    - a folder output may be missing or an empty folder; an existing non-empty folder is refused unless
+      ``overwrite``, and even then only a panovocc output of the same ``kind`` (its marker file, see
+      :data:`OUTPUT_MARKERS`) is replaced: any other folder is left alone;
+    - a file output may be missing; an existing file is replaced only with ``overwrite``; a folder where a
+      file is expected (or a file where a folder is expected) is refused;
+    - every existing ancestor of the output must be a folder.
+
+    Parameters
+    ----------
+    path : the output (file or folder); kind : a key of OUTPUT_MARKERS for folders, a word for files
+    inputs : paths the command reads (None entries ignored)
+    folder : whether the output is a folder
+
+    Raises
+    ------
+    PanovoccError naming the output, exit status 2.
+    """
+    path = Path(path)
+    check_output_path(path, folder)
+    out = _resolved(path)
+    for inp in inputs:
+        if inp is None:
+            continue
+        src = _resolved(inp)
+        if out == src or (folder and _is_within(src, out)):
+            raise PanovoccError(f"output would overwrite the input {inp}; choose another output path", path)
+    if not (path.exists() or path.is_symlink()):
+        return
+    if folder:
+        if not path.is_dir():
+            raise PanovoccError(f"exists and is not a folder (expected a {kind} output folder)", path)
+        if all(c.name in IGNORED_IN_EMPTY for c in path.iterdir()):
+            return
+        if not overwrite:
+            if kind == "map" and is_output_of_kind(path, kind):
+                raise PanovoccError("already holds a map (use --resume to continue it, --overwrite to start over)",
+                                    path)
+            raise PanovoccError("already exists and is not empty (pass --overwrite to replace a previous "
+                                f"{kind} output)", path)
+        if not is_output_of_kind(path, kind):
+            raise PanovoccError(f"is not a panovocc {kind} output (no {OUTPUT_MARKERS[kind][0]}); refusing to "
+                                "replace it even with --overwrite: remove it yourself or choose another path", path)
+    else:
+        if path.is_dir():
+            raise PanovoccError(f"is a folder; expected a {kind} file path", path)
+        if not overwrite:
+            raise PanovoccError("already exists (pass --overwrite to replace it)", path)
+
+
+def clean_temporaries(folder: str | Path, names=()) -> list[Path]:
+    """Remove atomic-write temporaries a killed run left in ``folder``: ``.STEM.*SUFFIX`` for each name.
+
+    Call it only while holding the folder's lock (no other writer can own them). Returns what was removed.
+    """
+    folder = Path(folder)
+    removed = []
+    for name in names:
+        p = Path(name)
+        for tmp in folder.glob(f".{p.stem}.*{p.suffix}"):
+            if tmp.is_file():
+                tmp.unlink(missing_ok=True)
+                removed.append(tmp)
+    return removed

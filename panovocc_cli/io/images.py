@@ -65,7 +65,12 @@ def read_image(path: str | Path, flags: str = "color") -> np.ndarray:
     if path.suffix.lower() == ".exr":
         return read_exr(path)
     flag = cv2.IMREAD_COLOR if flags == "color" else cv2.IMREAD_UNCHANGED
-    img = cv2.imread(str(path), flag)
+    # cv2.imread takes a str path and crashes (SIGSEGV) on names that are not valid UTF-8: read the bytes
+    # ourselves (any path the OS accepts) and decode them in memory.
+    data = np.fromfile(path, dtype=np.uint8)
+    if data[:8].tobytes() == PNG_SIGNATURE:
+        check_png_chunks(data.tobytes(), path)  # libpng would print its own line to stderr on a corrupt file
+    img = cv2.imdecode(data, flag) if data.size else None
     if img is None:
         raise PanovoccError("cannot decode image (corrupt or unsupported file; expected PNG, JPEG or EXR)", path)
     if flags == "color":
@@ -82,9 +87,12 @@ def write_png(path: str | Path, image: np.ndarray, compression: int = 1) -> None
     params = [cv2.IMWRITE_PNG_COMPRESSION, compression]
     if hasattr(cv2, "IMWRITE_PNG_FILTER"):  # the Sub row filter: about 25% faster than adaptive, same size
         params += [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
-    with atomic_path(path, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), img, params):
-            raise PanovoccError("could not write PNG", path)
+    ok, buf = cv2.imencode(".png", img, params)
+    if not ok:
+        raise PanovoccError("could not encode PNG", path)
+    with atomic_path(path, suffix=".png") as tmp:  # bytes written by Python: any path the OS accepts
+        with open(tmp, "wb") as f:
+            f.write(buf.tobytes())
 
 
 def read_rgb(path: str | Path, shape: tuple[int, int] | None = None) -> np.ndarray:
@@ -133,3 +141,75 @@ def read_labels(path: str | Path, shape: tuple[int, int] | None = None) -> np.nd
     if shape is not None and img.shape != tuple(shape):
         raise PanovoccError(f"labels are {img.shape[1]}x{img.shape[0]}, expected {shape[1]}x{shape[0]}", path)
     return img.astype(np.int64)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_COLOR_TYPES = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}  # colour type -> channels as decoded (palette: 1 index)
+
+
+def png_header(path: str | Path) -> tuple[int, int, int, int]:
+    """(width, height, bit depth, channels) from a PNG's IHDR chunk (its first 33 bytes and last 12 read, to
+    also catch a truncated file; nothing decoded).
+
+    Raises :class:`PanovoccError` naming the file when it is missing or not a PNG.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(33)
+            f.seek(max(0, f.seek(0, os.SEEK_END) - 12))
+            tail = f.read(12)
+    except FileNotFoundError:
+        raise PanovoccError("file not found", path) from None
+    if len(head) < 33 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise PanovoccError("not a PNG file (bad signature or header; corrupt or truncated)", path)
+    if tail[4:8] != b"IEND":
+        raise PanovoccError("PNG is truncated (no IEND chunk at its end)", path)
+    w, h = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    depth, ctype = head[24], head[25]
+    if ctype not in _PNG_COLOR_TYPES:
+        raise PanovoccError(f"PNG colour type {ctype} is invalid (corrupt file)", path)
+    return w, h, depth, _PNG_COLOR_TYPES[ctype]
+
+
+def check_image_header(path: str | Path, role: str, shape: tuple[int, int] | None = None) -> None:
+    """Cheap check of a frame image before any work: readable header, size ``shape`` = (H, W), and the
+    type its ``role`` needs (``rgb``; ``depth``: 16-bit single channel; ``labels``: 8/16-bit single
+    channel). Only PNG headers are parsed; JPEG/EXR files are checked for existence and non-zero size."""
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        try:
+            if path.stat().st_size == 0:
+                raise PanovoccError("file is empty", path)
+        except FileNotFoundError:
+            raise PanovoccError("file not found", path) from None
+        return
+    w, h, depth, ch = png_header(path)
+    if shape is not None and (h, w) != tuple(shape):
+        raise PanovoccError(f"{role} image is {w}x{h}, expected {shape[1]}x{shape[0]}", path)
+    if role == "depth" and (depth != 16 or ch != 1):
+        raise PanovoccError(f"depth PNG is {depth}-bit with {ch} channel(s); expected 16-bit single-channel "
+                            "(depth x depth_scale)", path)
+    if role == "labels" and (depth not in (8, 16) or ch != 1):
+        raise PanovoccError(f"label PNG is {depth}-bit with {ch} channel(s); expected 8/16-bit single-channel", path)
+
+
+def check_png_chunks(raw: bytes, path: str | Path) -> None:
+    """Walk a PNG's chunks and check each one's length and CRC, so that a corrupt file is one
+    :class:`PanovoccError` (libpng would print its own message on stderr before OpenCV gives up)."""
+    import zlib
+
+    pos, n = 8, len(raw)
+    while pos + 12 <= n:
+        length = int.from_bytes(raw[pos:pos + 4], "big")
+        end = pos + 12 + length
+        if end > n:
+            raise PanovoccError(f"PNG is truncated (chunk at byte {pos} runs past the end)", path)
+        ctype = raw[pos + 4:pos + 8]
+        if zlib.crc32(raw[pos + 4:pos + 8 + length]) != int.from_bytes(raw[pos + 8 + length:end], "big"):
+            raise PanovoccError(f"PNG is corrupt (CRC mismatch in chunk {ctype.decode('latin-1')!r} at byte {pos})",
+                                path)
+        if ctype == b"IEND":
+            return
+        pos = end
+    raise PanovoccError("PNG is truncated (no IEND chunk)", path)

@@ -54,8 +54,14 @@ def read_poses(path: str | Path) -> np.ndarray:
         if width == 16:
             T = vals.reshape(4, 4)
         else:
+            q = vals[4:8]
+            norm = float(np.sqrt(np.sum(q * q))) if np.all(np.isfinite(q)) else float("nan")
+            if not (np.isfinite(norm) and norm > 1e-6):
+                raise PanovoccError(f"line {n}: quaternion qx qy qz qw = {' '.join(parts[4:8])} has "
+                                    f"{'zero' if norm == 0 else 'no finite'} norm; expected a rotation "
+                                    "(unit quaternion)", path)
             T = np.eye(4)
-            T[:3, :3] = quat_to_rot(vals[4:8])
+            T[:3, :3] = quat_to_rot(q)
             T[:3, 3] = vals[1:4]
         poses.append(check_rigid(T, what=f"{path}: line {n}"))
     return np.stack(poses)

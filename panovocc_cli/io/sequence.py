@@ -65,6 +65,12 @@ class SequenceMeta:
             depth_scale = float(d.get("depth_scale", 1000.0))
         except (KeyError, TypeError, ValueError) as e:
             raise PanovoccError(f"missing or invalid key {e} (expected camera, width, height, frames)", path) from None
+        for k in ("width", "height", "frames"):  # JSON integers only: "256" or 256.5 is a broken file
+            if type(d[k]) is not int:
+                raise PanovoccError(f"{k} is {d[k]!r}; expected a whole number (JSON integer)", path)
+        if isinstance(d.get("depth_scale"), (bool, str)) or not np.isfinite(depth_scale):
+            raise PanovoccError(f"depth_scale is {d.get('depth_scale')!r}; expected a positive finite number "
+                                "(depth PNG units per metre)", path)
         if camera not in ("erp", "pinhole"):
             raise PanovoccError(f"camera is {camera!r}, expected 'erp' or 'pinhole'", path)
         if camera == "erp" and width != 2 * height:
@@ -74,6 +80,9 @@ class SequenceMeta:
         names = d.get("class_names", ["unlabeled"])
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise PanovoccError("class_names must be a list of strings", path)
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise PanovoccError(f"class_names has duplicates {dup}; each id needs its own name", path)
         known = {"camera", "width", "height", "depth_scale", "frames", "class_names", "fx", "fy", "cx", "cy"}
         meta = cls(width=width, height=height, frames=frames, camera=camera, depth_scale=depth_scale,
                    class_names=names, extra={k: v for k, v in d.items() if k not in known})
@@ -139,6 +148,23 @@ class Sequence:
     @property
     def has_labels(self) -> bool:
         return (self.root / "semantic").is_dir()
+
+    def check_files(self, parts: tuple[str, ...] | None = None) -> None:
+        """Check every frame before any work: each file present, its PNG header readable and complete, its
+        size and type right (nothing decoded). ``parts``: of ``depth``, ``rgb``, ``semantic``; default depth,
+        plus rgb and semantic where their folders exist. Raises :class:`PanovoccError` naming the first bad file."""
+        from .images import check_image_header
+
+        exts = {"depth": (".png", ".exr"), "rgb": (".png", ".jpg", ".jpeg"), "semantic": (".png",)}
+        role = {"rgb": "rgb", "depth": "depth", "semantic": "labels"}
+        if parts is None:
+            parts = ("depth",) + tuple(p for p in ("rgb", "semantic") if (self.root / p).is_dir())
+        for sub in parts:
+            if not (self.root / sub).is_dir():
+                raise PanovoccError(f"folder {sub}/ not found (expected the frames' {role[sub]} images)", self.root)
+        for i in range(len(self)):
+            for sub in parts:
+                check_image_header(_find(self.root / sub, frame_stem(i), exts[sub]), role[sub], self.meta.shape)
 
     def rgb(self, i: int) -> np.ndarray:
         return read_rgb(_find(self.root / "rgb", frame_stem(i), (".png", ".jpg", ".jpeg")), self.meta.shape)

@@ -20,6 +20,7 @@ poses to ``Mapper.revise``, which recomputes those frames from the folder throug
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import shutil
 import sys
@@ -29,9 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import MAX_STRIDE
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
+from ..io.atomic import check_output, clean_temporaries
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import read_poses, write_poses
@@ -71,13 +74,15 @@ class MapConfig:
 
     @classmethod
     def from_json(cls, d: dict, where) -> "MapConfig":
+        if not isinstance(d, dict):
+            raise PanovoccError("not a panovocc map config (expected a JSON object)", where)
+        version = d.get("format_version", 1)
+        if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
+            raise PanovoccError(f"format_version {version!r}: this panovocc reads map formats 1 to {FORMAT_VERSION} "
+                                "(a newer panovocc wrote it, or the file is corrupt)", where)
         try:
-            version = int(d.get("format_version", 1))
-            if version > FORMAT_VERSION:
-                raise PanovoccError(f"format_version {version} is newer than this panovocc reads ({FORMAT_VERSION})",
-                                    where)
-            g = GeometryParams(**d["geometry"])
-            o = OccupancyParams(**d["occupancy"])
+            g = _typed(GeometryParams, d["geometry"])
+            o = _typed(OccupancyParams, d["occupancy"])
             s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
@@ -91,6 +96,20 @@ class MapConfig:
         return MapperConfig(geometry=self.geometry, occupancy=self.occupancy,
                             vocab=list(s.vocab) if s.enabled else [], use_gsc=s.use_gsc, gsc=s.gsc,
                             weights=s.weights)
+
+
+def _typed(cls, d: dict):
+    """``cls(**d)`` with each value checked against the type of the field's default (int accepted for float)."""
+    if not isinstance(d, dict):
+        raise TypeError(f"{cls.__name__} section is {type(d).__name__}, expected an object")
+    defaults = cls()
+    for k, v in d.items():
+        if not hasattr(defaults, k):
+            raise TypeError(f"unknown {cls.__name__} key {k!r}")
+        want = type(getattr(defaults, k))
+        if not (type(v) is want or (want is float and type(v) is int)):
+            raise TypeError(f"{k} is {v!r}, expected {want.__name__}")
+    return cls(**d)
 
 
 def resolve_semantic(p: SemanticParams, seq: Sequence) -> SemanticParams:
@@ -187,6 +206,14 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
         raise PanovoccError(f"--stride must be >= 0 (0 = auto), got {cfg.stride}")
     if cfg.checkpoint_every < 0:
         raise PanovoccError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
+    if cfg.stride > MAX_STRIDE:
+        raise PanovoccError(f"--stride must be at most {MAX_STRIDE} pixels (0 = auto), got {cfg.stride}")
+    if not 0 < g.kappa <= 10:
+        raise PanovoccError(f"--kappa must be in (0, 10], got {g.kappa}")
+    if not 0 <= cfg.occupancy.nu <= 1:
+        raise PanovoccError(f"--nu must be in [0, 1] (a share of observations), got {cfg.occupancy.nu}")
+    if not (np.isfinite(g.max_range) and g.max_range > g.min_range):
+        raise PanovoccError(f"--max-range must be a distance in metres above min_range {g.min_range}, got {g.max_range}")
     cfg = dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride),
                               seq=str(Path(cfg.seq).resolve()), out=str(Path(cfg.out).resolve()),
                               poses=None if cfg.poses is None else str(Path(cfg.poses).resolve()))
@@ -195,6 +222,44 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
 
 
 _OUTPUTS = (CONFIG_NAME, MEMORY_NAME, "poses.txt", "prediction.npz", "map.ply")
+
+
+def _check_inputs(cfg: MapConfig, seq: Sequence) -> None:
+    """What can be checked cheaply before the first write: every frame's files present, their PNG headers
+    (size, bit depth, channels, a whole file), and a precomputed segmentation's file for every frame."""
+    from ..io.sequence import frame_stem
+
+    spec = cfg.semantic.segmenter if cfg.semantic.enabled else ""
+    labels = ("semantic",) if spec == "simulated" or (seq.root / "semantic").is_dir() else ()
+    seq.check_files(("depth",) + (("rgb",) if spec else ()) + labels)
+    if spec.startswith("precomputed:"):
+        from ..classes import canonical_name
+        from ..semantics.precomputed import read_vocab_json
+
+        folder = Path(spec[len("precomputed:"):])
+        known = set(read_vocab_json(folder))
+        if not any(canonical_name(v) in known for v in cfg.semantic.vocab):
+            raise PanovoccError(f"none of the vocabulary words {list(cfg.semantic.vocab)} appear in vocab.json "
+                                f"{sorted(known)}", folder / "vocab.json")
+        for i in range(len(seq)):
+            stem = frame_stem(i)
+            if not ((folder / f"{stem}.npz").is_file() or (folder / f"{stem}.png").is_file()):
+                raise PanovoccError(f"frame {stem} not found (expected {stem}.npz or {stem}.png)", folder)
+
+
+@contextlib.contextmanager
+def _writer_lock(out: Path):
+    """Hold OUT/.lock (one writer per map folder, io/lock.py), then clear the temporaries a killed run left."""
+    from ..io.lock import FolderLock
+
+    if not out.is_dir():
+        raise PanovoccError("map output folder not found", out)
+    with FolderLock(out):
+        clean_temporaries(out, _OUTPUTS)
+        if (out / mapstore.DELTAS_DIR).is_dir():
+            for tmp in (out / mapstore.DELTAS_DIR).glob(".*.npz"):
+                tmp.unlink(missing_ok=True)
+        yield
 
 
 def load_config(out: str | Path) -> MapConfig:
@@ -227,8 +292,14 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         [segmenter_ms_per_frame], empty_frames: ids of frames with no valid depth, mapped as empty
         observations)
     """
+    with contextlib.ExitStack() as held:  # the folder lock (io/lock.py), taken once the folder is known
+        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held)
+
+
+def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
+        held.enter_context(_writer_lock(out))
         cfg = load_config(out)
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
@@ -251,8 +322,10 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
         frames = sequence_frames(cfg, seq)  # builds the segmenter: fails before any file is written
         out = Path(cfg.out)
-        if out.exists() and not out.is_dir():
-            raise PanovoccError("output path exists and is not a folder", out)
+        check_output(out, "map", overwrite, inputs=(cfg.seq, cfg.poses))
+        _check_inputs(cfg, seq)  # every frame present with the right size and type, before the first write
+        out.mkdir(parents=True, exist_ok=True)
+        held.enter_context(_writer_lock(out))
         if (out / CONFIG_NAME).exists():
             if not overwrite:
                 raise PanovoccError("already holds a map (use --resume to continue it, --overwrite to start over)",
@@ -281,6 +354,10 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
             done = i + 1
             if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
                 mapper.save(out)  # waits for the pending delta write: a checkpoint covers deltas on disk only
+    except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
+        what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
+        raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
+                            f"panovocc map --resume {out} (or start over with --overwrite)") from None
     finally:
         mapper.close()
         bar.close()
@@ -312,6 +389,11 @@ def run_revise(out: str | Path, poses_path: str | Path, progress: bool = True) -
     A run killed after the commit is completed by the next ``revise`` (staged deltas are rolled forward).
     """
     out = Path(out)
+    with _writer_lock(out):
+        return _run_revise(out, poses_path, progress)
+
+
+def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     cfg = load_config(out)
     new_poses = read_poses(poses_path)
     n_seq = read_meta(cfg.seq).frames
@@ -329,9 +411,18 @@ def run_revise(out: str | Path, poses_path: str | Path, progress: bool = True) -
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
+        for i in changed:  # cheap checks first: nothing is staged when a delta file is missing
+            if not mapstore.delta_path(out, i).is_file():
+                raise PanovoccError("delta file missing (the output folder is incomplete)", mapstore.delta_path(out, i))
         t0 = time.perf_counter()
-        for i in tqdm(changed, desc="revise", unit="frame", file=sys.stderr, disable=not progress):
-            mapper.revise(i, new_poses[i])
+        try:
+            for i in tqdm(changed, desc="revise", unit="frame", file=sys.stderr, disable=not progress):
+                mapper.revise(i, new_poses[i])
+        except BaseException:  # before the commit point (memory.npz): the map is as it was, drop what was staged
+            mapper.close()
+            for i in changed:
+                mapstore.staged_path(mapstore.delta_path(out, i)).unlink(missing_ok=True)
+            raise
         mapper.save(out)
     finally:
         mapper.close()

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import canonical_name
-from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE
+from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH
 from ..errors import PanovoccError
 from ..geometry.erp import check_erp_size
 
@@ -31,7 +31,8 @@ class RenderConfig:
     scene: Replica-format scene folder; out: sequence folder to write; traj: trajectory (NICE-SLAM or
     TUM; default SCENE/traj.txt); width: ERP width in pixels (even, height = width / 2); backend:
     raycast | pyrender; every: keep every k-th pose; noise: none | realistic; seed: noise seed;
-    threads: ray-casting threads (0 = all cores).
+    threads: ray-casting threads (0 = all cores); overwrite: replace a previous sequence in ``out`` (only a
+    folder holding meta.json; never one holding an input).
     """
 
     scene: Path
@@ -44,6 +45,7 @@ class RenderConfig:
     seed: int = DEFAULT_SEED
     threads: int = 0
     progress: bool = True
+    overwrite: bool = False  # replace a previous sequence in ``out`` (never another kind of folder, never an input)
 
 
 def make_renderer(scene, width: int, backend: str, threads: int = 0):
@@ -63,13 +65,19 @@ def run_render(cfg: RenderConfig) -> dict:
     """Render ``cfg.scene`` along the trajectory into ``cfg.out``; returns a summary dict."""
     from tqdm import tqdm
 
-    from ..datasets.replica import TRAJ_NAME, read_replica_scene
-    from ..io.atomic import atomic_dir
+    from ..datasets.replica import TRAJ_NAME, read_replica_scene, scene_files, scene_paths
+    from ..io.atomic import atomic_dir, check_output
     from ..io.poses import read_poses
     from ..io.images import write_png
     from ..io.sequence import SequenceMeta, frame_images, write_meta, write_sequence_poses
     from .noise import NOISE_PARAMS, degrade
 
+    if cfg.width < MIN_WIDTH:
+        raise PanovoccError(f"--width must be at least {MIN_WIDTH}, got {cfg.width}")
+    if cfg.seed < 0:
+        raise PanovoccError(f"--seed must be >= 0, got {cfg.seed}")
+    if cfg.threads < 0:
+        raise PanovoccError(f"--threads must be >= 0 (0 = all cores), got {cfg.threads}")
     W, H = check_erp_size(cfg.width)
     if cfg.backend not in BACKENDS:
         raise PanovoccError(f"unknown backend {cfg.backend!r} (expected one of {', '.join(BACKENDS)})")
@@ -77,7 +85,9 @@ def run_render(cfg: RenderConfig) -> dict:
         raise PanovoccError(f"unknown noise model {cfg.noise!r} (expected one of {', '.join(NOISE_MODELS)})")
     if cfg.every < 1:
         raise PanovoccError(f"--every must be at least 1, got {cfg.every}")
+    scene_paths(cfg.scene)  # a missing scene is named before its trajectory
     traj = Path(cfg.traj) if cfg.traj is not None else Path(cfg.scene) / TRAJ_NAME
+    check_output(cfg.out, "sequence", cfg.overwrite, inputs=(cfg.scene, traj, *scene_files(cfg.scene)))
     poses = read_poses(traj)[::cfg.every]
     scene = read_replica_scene(cfg.scene)
     glass_ids = [i for i, c in enumerate(scene.class_names) if canonical_name(c) == "window"]

@@ -98,7 +98,7 @@ def test_show_and_convert_commands(capsys, tmp_path, pair):
     import matplotlib.image as mpimg
 
     assert mpimg.imread(tmp_path / "pic.png").shape[1] == 800
-    code, _, err = run(capsys, "show", pred, gt, tmp_path / "pic.png", "--titles", "only one")
+    code, _, err = run(capsys, "show", pred, gt, tmp_path / "pic.png", "--titles", "only one", "--overwrite")
     assert code == 2 and "titles" in err
 
     code, out, err = run(capsys, "convert", "to-replicaocc", gt, tmp_path / "gt.pkl")
