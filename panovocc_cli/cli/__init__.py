@@ -37,7 +37,13 @@ def _printable(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: expected failures print one line and exit 2; others keep their traceback."""
+    """Console entry point: expected failures print one line and exit 2; others keep their traceback.
+
+    Applies the process settings of :func:`panovocc_cli.runtime.setup` first (before any kernel loads).
+    """
+    from ..runtime import setup
+
+    setup()
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
     except PanovoccError as e:

@@ -7,9 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-# Holo360D ships float EXR depth; OpenCV reads EXR only when this is set before first use.
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
-
 from ..errors import PanovoccError
 from .atomic import atomic_path
 

@@ -56,6 +56,9 @@ def bench(scene_dir: Path, width: int = 1024, frames: int = 60, reps: int = 3) -
 
 
 def main() -> None:
+    from ..runtime import setup
+
+    setup()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene", type=Path)
     ap.add_argument("--width", type=int, default=1024)

@@ -113,24 +113,10 @@ def test_extract_and_frame_box_match_numpy():
     np.testing.assert_array_equal(lo + shape - 1, np.floor(pmax / 0.08).astype(np.int64) + 1)
 
 
-def test_process_settings_for_the_shared_cores():
-    """Importing the package makes OpenMP workers sleep at barriers (unless the user chose), and the
-    mapper keeps freed heap in the process on glibc; the radial fit's selection equals a sort."""
-    import os
-    import subprocess
-    import sys
+def test_radial_fit_selection_equals_a_sort():
+    """The radial fit's selection equals a sort (process settings: tests/test_runtime.py)."""
+    from panovocc_cli.mapping.psvf import noise_fit
 
-    from panovocc_cli.mapping.psvf import noise_fit, update
-
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    code = "import os, panovocc_cli; print(os.environ['OMP_WAIT_POLICY'])"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "passive"
-    env["OMP_WAIT_POLICY"] = "active"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "active"
-    if sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION"):
-        assert update.keep_freed_heap()
     rng = np.random.default_rng(0)
     r = rng.uniform(0.2, 5.0, 4000)
     res2 = rng.exponential(1e-6, 4000)

@@ -16,6 +16,7 @@ import numba as nb
 import numpy as np
 
 from ...errors import PanovoccError
+from ...runtime import keep_freed_heap  # noqa: F401 (applied by runtime.setup(), not at import)
 from ..freespace import carve
 from ..memory import FIXED_SCALE, Delta
 from ..params import GeometryParams
@@ -24,30 +25,6 @@ from .splat import local_voxel, splat, splat_axis
 from .surfel import surfels_for
 
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
-
-# glibc malloc: keep freed memory in the process. A frame's update allocates ~20 MB of temporaries
-# (kernels, the dense support / free-space grids, the delta) and frees them; by default glibc hands
-# the top of its heap back to the kernel once over 2x its mmap threshold is free, so every frame
-# faulted ~4200 fresh pages back in. On the 2-core machine under load that made the update 22-130
-# ms/frame instead of 9-10 (same bytes). A fixed mmap threshold of 32 MiB (the default's ceiling)
-# and a 256 MiB trim threshold keep the pages; the process keeps its peak heap (about one frame's).
-HEAP_TRIM_BYTES = 256 * 2 ** 20
-HEAP_MMAP_BYTES = 32 * 2 ** 20
-
-
-def keep_freed_heap() -> bool:
-    """Set glibc's ``M_TRIM_THRESHOLD`` / ``M_MMAP_THRESHOLD`` (see above) once per process; False
-    where the C library is not glibc (nothing changed)."""
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        return bool(libc.mallopt(-1, HEAP_TRIM_BYTES)) and bool(libc.mallopt(-3, HEAP_MMAP_BYTES))
-    except (OSError, AttributeError):
-        return False
-
-
-keep_freed_heap()
 
 
 @nb.njit(cache=True)

@@ -1,0 +1,79 @@
+"""Process settings for the toolkit's kernels, applied by one explicit call: :func:`setup`.
+
+Importing ``panovocc_cli`` (or any module of it) changes nothing in the process. The command line
+calls :func:`setup` before it runs a command; a library user who maps or renders from Python calls it
+once, first thing, before numba's parallel kernels run::
+
+    import panovocc_cli.runtime
+    panovocc_cli.runtime.setup()
+
+What it does, and why (figures: docs/mapping.md, "Speed"):
+
+* ``NUMBA_THREADING_LAYER_PRIORITY=omp workqueue tbb``: numba's parallel kernels use OpenMP (libgomp,
+  installed with open3d's Debian dependencies) and never try TBB first (the default order tries TBB
+  and warns on every run when the installed TBB is too old).
+* ``OMP_WAIT_POLICY=passive``: OpenMP workers sleep at barriers instead of spinning (~300k rounds by
+  default). On the 2-core machines this runs on, shared with other jobs, a spinning worker competes
+  with the thread it waits for: the geometric update collapsed from ~10 to 66-130 ms/frame under load.
+  libgomp reads it when numba first loads it, so :func:`setup` must come before the first parallel
+  kernel runs.
+* glibc ``mallopt``: keep freed memory in the process (:func:`keep_freed_heap`).
+
+Environment values the user already set are kept (``OMP_WAIT_POLICY=active panovocc map ...`` spins).
+Calling :func:`setup` again does nothing more.
+"""
+
+from __future__ import annotations
+
+import os
+
+ENV_DEFAULTS = {
+    "NUMBA_THREADING_LAYER_PRIORITY": "omp workqueue tbb",
+    "OMP_WAIT_POLICY": "passive",
+}
+"""Environment variables :func:`setup` sets when the user has not set them."""
+
+# glibc malloc: a frame's update allocates ~20 MB of temporaries (kernels, the dense support /
+# free-space grids, the delta) and frees them; by default glibc hands the top of its heap back to the
+# kernel once over 2x its mmap threshold is free, so every frame faulted ~4200 fresh pages back in. On
+# the 2-core machine under load that made the update 22-130 ms/frame instead of 9-10 (same bytes). A
+# fixed mmap threshold of 32 MiB (the default's ceiling) and a 256 MiB trim threshold keep the pages;
+# the process keeps its peak heap (about one frame's).
+HEAP_TRIM_BYTES = 256 * 2 ** 20
+HEAP_MMAP_BYTES = 32 * 2 ** 20
+
+_done: dict | None = None
+
+
+def keep_freed_heap() -> bool:
+    """Set glibc's ``M_TRIM_THRESHOLD`` / ``M_MMAP_THRESHOLD`` (see above) for this process.
+
+    Returns
+    -------
+    bool
+        True when both were set; False where the C library is not glibc (nothing changed).
+    """
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(-1, HEAP_TRIM_BYTES)) and bool(libc.mallopt(-3, HEAP_MMAP_BYTES))
+    except (OSError, AttributeError):
+        return False
+
+
+def setup() -> dict:
+    """Apply the toolkit's process settings once (idempotent; a second call returns the first's answer).
+
+    Returns
+    -------
+    dict
+        ``{"env": {name: value in effect}, "heap": bool}``: the environment variables of
+        :data:`ENV_DEFAULTS` as they now are (the user's own value where one was set), and whether
+        glibc's heap thresholds were set.
+    """
+    global _done
+    if _done is None:
+        env = {k: os.environ.setdefault(k, v) for k, v in ENV_DEFAULTS.items()}
+        _done = {"env": env, "heap": keep_freed_heap()}
+    return _done

@@ -1,0 +1,46 @@
+"""panovocc_cli.runtime: importing the package changes nothing; setup() applies the process settings
+once, keeps the user's own environment values, and the command line calls it."""
+
+import os
+import subprocess
+import sys
+
+PROBE = ("import os, sys\n"
+         "import panovocc_cli, panovocc_cli.cli, panovocc_cli.io.images, panovocc_cli.mapping.contributors\n"
+         "before = os.environ.get('OMP_WAIT_POLICY'), os.environ.get('NUMBA_THREADING_LAYER_PRIORITY')\n"
+         "import panovocc_cli.runtime as rt\n"
+         "first = rt.setup(); second = rt.setup()\n"
+         "print(before[0], before[1] is None, first['env']['OMP_WAIT_POLICY'], os.environ['OMP_WAIT_POLICY'],\n"
+         "      first is second, first['heap'])\n")
+
+
+def _env(**over):
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "NUMBA_THREADING_LAYER_PRIORITY")}
+    env.update(over)
+    return env
+
+
+def _run(code, env):
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+
+
+def test_import_has_no_side_effects_and_setup_applies_the_settings_once():
+    out = _run(PROBE, _env()).split()
+    assert out[:2] == ["None", "True"]  # importing set nothing
+    assert out[2:5] == ["passive", "passive", "True"]  # setup() set it; a second call is the same answer
+    if sys.platform.startswith("linux") and os.confstr("CS_GNU_LIBC_VERSION"):
+        assert out[5] == "True"  # glibc heap thresholds set
+
+
+def test_setup_keeps_the_users_own_values():
+    out = _run(PROBE, _env(OMP_WAIT_POLICY="active")).split()
+    assert out[0] == "active" and out[2:4] == ["active", "active"]
+
+
+def test_the_command_line_calls_setup():
+    code = ("import os, sys\n"
+            "from panovocc_cli.cli import main\n"
+            "try:\n    main(['version'])\n"
+            "except SystemExit:\n    pass\n"
+            "print(os.environ.get('OMP_WAIT_POLICY'), os.environ.get('NUMBA_THREADING_LAYER_PRIORITY'))\n")
+    assert _run(code, _env()).splitlines()[-1] == "passive omp workqueue tbb"
