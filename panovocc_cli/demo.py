@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from .config import DEFAULT_SEED
+from .config import DEFAULT_SEED, DEFAULT_WIDTH
 
 
 @dataclass
@@ -29,7 +29,7 @@ class DemoConfig:
     out: Path
     seed: int = DEFAULT_SEED
     frames: int = 60
-    width: int = 1024
+    width: int = DEFAULT_WIDTH
     noise: str = "none"
     progress: bool = True
     overwrite: bool = False  # replace a previous demo's outputs in ``out`` (only a folder a demo wrote)

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .config import DEFAULT_VOXEL_SIZE
+from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS
 from .errors import PanovoccError
 from .geometry.lattice import bounds_to_grid, index_to_center
 from .grid import OCCUPIED_UNKNOWN_CLASS, Grid
 
-BOUNDARY_EPS = 1e-5  # voxel units: a vertex this close below a voxel face counts as on it (float32 PLYs)
+BOUNDARY_EPS = GT_BOUNDARY_EPS  # voxel units (config.py)
 MIN_AREA = 1e-10  # voxel units^2: pieces smaller than this (edges, corners touching a voxel) are dropped
 
 

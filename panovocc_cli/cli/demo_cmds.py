@@ -6,15 +6,16 @@ from pathlib import Path
 
 import typer
 
+from ..config import DEFAULT_SEED, DEFAULT_WIDTH
 from ._app import app
 
 
 @app.command()
 def demo(
     out: Path = typer.Argument(Path("work/demo"), help="Working folder for every stage's outputs."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the procedural scene, render noise and segmenter."),
+    seed: int = typer.Option(DEFAULT_SEED, "--seed", help="Seed of the procedural scene, render noise and segmenter."),
     frames: int = typer.Option(60, "--frames", min=1, help="Number of trajectory poses (frames)."),
-    width: int = typer.Option(1024, "--width", help="ERP width in pixels (even; height = width / 2)."),
+    width: int = typer.Option(DEFAULT_WIDTH, "--width", help="ERP width in pixels (even; height = width / 2)."),
     noise: str = typer.Option("none", "--noise", help="Depth noise of the render: none | realistic."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous demo's outputs in OUT (never any "
                                                              "other folder)."),

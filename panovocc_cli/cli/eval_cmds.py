@@ -11,6 +11,7 @@ from typing import List, Optional, Tuple
 
 import typer
 
+from ..config import COVERAGE_TOL_M, DEFAULT_VOXEL_SIZE
 from ..errors import PanovoccError
 from ._app import app
 
@@ -90,7 +91,7 @@ def coverage_cmd(
                                  help="Perspective image width/height, used when --vfov-deg is not given "
                                       "(default: Replica's 1200x680)."),
     every: int = typer.Option(1, "--every", help="Use every K-th frame (the last frame is always used)."),
-    tol_m: float = typer.Option(0.01, "--tol-m", help="Metres: a depth point this close to a voxel face also "
+    tol_m: float = typer.Option(COVERAGE_TOL_M, "--tol-m", help="Metres: a depth point this close to a voxel face also "
                                                       "observes the voxel across it."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous coverage output in --out (never "
                                                              "any other folder)."),
@@ -143,7 +144,7 @@ def convert_replicaocc_cmd(
                                     "ids 1.. unless the first name is empty/free/unlabeled (then ids 0..). "
                                     "Default: the file's class_names key, else FreeOcc's replica_name.txt (101)."),
     voxel_size: Optional[float] = typer.Option(
-        None, "--voxel-size", help="Voxel edge, metres (default: the file's voxel_size key, else 0.08)."),
+        None, "--voxel-size", help=f"Voxel edge, metres (default: the file's voxel_size key, else {DEFAULT_VOXEL_SIZE})."),
     tol_m: Optional[float] = typer.Option(None, "--tol-m", help="Metres a centre may be off the lattice "
                                                                 "(default: a quarter voxel)."),
     allow_shift: bool = typer.Option(False, "--allow-shift", help="Translate an off-lattice grid onto the lattice."),

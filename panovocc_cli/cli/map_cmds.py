@@ -8,6 +8,7 @@ from typing import Optional
 
 import typer
 
+from ..config import DEFAULT_SEED, DEFAULT_WIDTH
 from ..errors import PanovoccError
 from ..mapping.params import GeometryParams, OccupancyParams
 from ._app import app
@@ -64,7 +65,7 @@ def map_cmd(
                    "(eval8, open4, eval12, e.g. 'eval8,pillow'); default eval8,open4."),
     noise: Optional[float] = typer.Option(
         None, help="Simulated segmenter noise level (dimensionless; 1 = default realistic errors, 0 = exact)."),
-    seed: Optional[int] = typer.Option(None, help="Seed of the simulated segmenter's noise (default 0)."),
+    seed: Optional[int] = typer.Option(None, help=f"Seed of the simulated segmenter's noise (default {DEFAULT_SEED})."),
     no_gsc: bool = typer.Option(False, "--no-gsc", help="Ablation: raw argmax of the fused evidence, no GSC."),
     ply_color: Optional[str] = typer.Option(
         None, help="map.ply colours: class (class colours, grey = no class) | rgb (mean pixel colour) | height."),
@@ -97,7 +98,7 @@ def map_cmd(
         occ = OccupancyParams(**_given(rule=rule, nu=nu, lambda_n=lambda_n, lambda_f=lambda_f, tau_s=tau_s, tau_w=tau_w,
                                        gamma_f=gamma_f))
         sem = SemanticParams(segmenter=segmenter, vocab=vocab, noise=1.0 if noise is None else noise,
-                             seed=0 if seed is None else seed, use_gsc=not no_gsc, ply_color=ply_color or "class")
+                             seed=DEFAULT_SEED if seed is None else seed, use_gsc=not no_gsc, ply_color=ply_color or "class")
         cfg = MapConfig(seq=str(seq), out=str(out), poses=None if poses is None else str(poses),
                         checkpoint_every=checkpoint_every, geometry=geo, occupancy=occ, stride=stride, semantic=sem)
         summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
@@ -133,7 +134,7 @@ def segeval(
     segmenter: str = typer.Option("simulated", help="Segmenter to score: simulated | precomputed:DIR."),
     vocab: Optional[str] = typer.Option(None, help="Vocabulary (as for map); default eval8,open4."),
     noise: float = typer.Option(1.0, help="Simulated segmenter noise level (dimensionless; 0 = exact)."),
-    seed: int = typer.Option(0, help="Seed of the simulated segmenter's noise."),
+    seed: int = typer.Option(DEFAULT_SEED, help="Seed of the simulated segmenter's noise."),
     classes: str = typer.Option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c)."),
     every: int = typer.Option(1, help="Score every K-th frame (frames 0, K, 2K, ...)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -156,7 +157,7 @@ def segeval(
 def bench(
     outdir: Path = typer.Argument(..., help="Working folder (the rendered sequence, the map, bench.json)."),
     frames: int = typer.Option(40, help="Frames of the benchmark sequence."),
-    width: int = typer.Option(1024, help="ERP width of the benchmark sequence, pixels (height = width / 2)."),
+    width: int = typer.Option(DEFAULT_WIDTH, help="ERP width of the benchmark sequence, pixels (height = width / 2)."),
 ) -> None:
     """Mapper speed against Open3D VoxelBlockGrid TSDF fusion (cube faces) on the same frames."""
     from ..mapping.bench import BenchConfig, run_bench

@@ -10,10 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import VOXEL_SIZE_RTOL
 from ..errors import PanovoccError
 from ..grid import Grid
-
-VOXEL_SIZE_RTOL = 1e-6  # relative tolerance for "the same voxel size"
 
 
 @dataclass(frozen=True)

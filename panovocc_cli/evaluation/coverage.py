@@ -25,12 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import COVERAGE_TOL_M
 from ..errors import PanovoccError
 from ..geometry.erp import ray_directions
 from ..grid import EMPTY, UNKNOWN, Grid
 
 REPLICA_ASPECT = 1200.0 / 680.0  # NICE-SLAM Replica camera, fx = fy = 600: 90 x 59.0 degrees
-DEFAULT_TOL_M = 0.01
+DEFAULT_TOL_M = COVERAGE_TOL_M
 
 
 def vertical_fov(hfov: float, aspect: float = REPLICA_ASPECT) -> float:

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..config import MAX_PICTURE_PX
+from ..config import COVERAGE_TOL_M, MAX_PICTURE_PX
 from ..errors import PanovoccError
 from ..io.atomic import check_output_path, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
@@ -192,7 +192,7 @@ class CoverageConfig:
     vfov_deg: float | None = None
     aspect: float = 1200.0 / 680.0
     every: int = 1
-    tol_m: float = 0.01
+    tol_m: float = COVERAGE_TOL_M
     progress: bool = True
 
 

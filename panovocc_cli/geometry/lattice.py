@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config import LATTICE_TOL
 from ..errors import PanovoccError
 
-DEFAULT_VOXEL_SIZE = 0.08
 _BITS = 21
 _OFFSET = 1 << (_BITS - 1)
 _MASK = (1 << _BITS) - 1
@@ -31,7 +31,7 @@ def origin_to_index(origin, voxel_size: float) -> np.ndarray:
     """Lattice index of a grid origin (the centre of its voxel [0, 0, 0]); checks it lies on the lattice."""
     o = np.asarray(origin, dtype=np.float64) / voxel_size - 0.5
     n = np.round(o)
-    if not np.allclose(o, n, atol=1e-4):
+    if not np.allclose(o, n, atol=LATTICE_TOL):
         raise PanovoccError(
             f"grid origin {np.asarray(origin).tolist()} is not on the global lattice of voxel size {voxel_size} "
             "(origin / voxel_size - 0.5 must be whole)"

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config import RIGID_TOL
 from ..errors import PanovoccError
-
-RIGID_TOL = 1e-4
 
 
 def check_rigid(T, what: str = "pose", tol: float = RIGID_TOL) -> np.ndarray:

@@ -49,14 +49,14 @@ from typing import Sequence
 import numpy as np
 
 from ..classes import EMPTY, canonical_name
+from ..config import DEFAULT_VOXEL_SIZE, SNAP_TOL
 from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center
 from ..grid import MAX_CLASSES, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .atomic import atomic_path, check_output_path
 
 FREE_NAMES = ("empty", "free", "unlabeled", "unlabelled")
-DEFAULT_SNAP_TOL = 0.25  # fraction of a voxel a centre may be off the lattice
-DEFAULT_VOXEL_SIZE = 0.08  # the benchmark's (FreeOcc passes it beside the file)
+DEFAULT_SNAP_TOL = SNAP_TOL  # fraction of a voxel a centre may be off the lattice (config.py)
 PICKLE_PROTOCOL = 4  # what we write: readable by Python >= 3.4, same grid -> same bytes
 MAX_VOXELS = 2_000_000_000
 

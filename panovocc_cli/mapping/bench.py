@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, DEFAULT_WIDTH
 from ..errors import PanovoccError
 from ..io.atomic import write_text
 from ..io.sequence import Sequence, read_meta
@@ -40,9 +41,9 @@ TRUNC_VOXELS = 3.0  # Open3D TSDF truncation, voxels (its default is 8; 3 is the
 class BenchConfig:
     out: str  # working folder
     frames: int = 40
-    width: int = 1024  # ERP width, pixels
-    voxel_size: float = 0.08  # metres
-    seed: int = 0
+    width: int = DEFAULT_WIDTH  # ERP width, pixels
+    voxel_size: float = DEFAULT_VOXEL_SIZE  # metres
+    seed: int = DEFAULT_SEED
     repeats: int = 5  # timed passes of each side (median reported)
     process_repeats: int = 3  # timed whole-process runs of each command (median reported)
 

@@ -7,12 +7,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..config import DEFAULT_VOXEL_SIZE
+
 
 @dataclass(frozen=True)
 class GeometryParams:
     """Parameters of the geometry contributor (defaults and reasons: docs/mapping.md)."""
 
-    voxel_size: float = 0.08  # metres
+    voxel_size: float = DEFAULT_VOXEL_SIZE  # metres
     stride: int = 4  # pixels between samples of the kernel lift
     kernel: str = "psvf"  # "psvf" or "point"
     alpha: float = 0.0025  # radial kernel scale: alpha * r + beta (dimensionless)

@@ -27,6 +27,7 @@ from ..classes import canonical_name
 from ..errors import PanovoccError
 from ..io.atomic import write_text
 from ..io.jsonfile import read_json
+from ..config import PROB_TOL
 from ..io.images import read_image, write_png
 from ..io.npz import write_npz
 from ..io.sequence import frame_stem
@@ -34,7 +35,7 @@ from .segmenter import Segmenter
 
 MISSING_LOGPROB = float(np.log(1e-6))
 DEFAULT_LABEL_CONFIDENCE = 0.9
-_PROB_TOL = 1e-2
+_PROB_TOL = PROB_TOL
 
 
 def read_vocab_json(folder: str | Path) -> list[str]:
