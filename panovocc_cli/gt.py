@@ -241,11 +241,13 @@ def run_gt(cfg: GtConfig) -> dict:
     from .datasets.replica import read_replica_scene, scene_files
     from .io.atomic import check_output
     from .io.grid import write_grid
+    from .io.runconfig import config_path_beside, write_run_config
 
     check_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.scene, *scene_files(cfg.scene)), folder=False)
     scene = read_replica_scene(cfg.scene)
     grid = voxelize_scene(scene, cfg.voxel_size)
     write_grid(cfg.out, grid)
+    write_run_config(config_path_beside(cfg.out), cfg)
     occ = (grid.labels > 0) & (grid.labels < 255)
     return {"shape": tuple(int(s) for s in grid.labels.shape), "occupied": int(occ.sum()),
             "classes": len(grid.class_names), "voxel_size": grid.voxel_size}

@@ -974,12 +974,14 @@ def run_synth(cfg: SynthConfig) -> dict:
     """Write ``cfg.out`` as a Replica-format scene plus ``traj.txt``; returns a summary dict."""
     from ..io.atomic import atomic_dir
     from ..io.poses import write_poses
+    from ..io.runconfig import CONFIG_NAME, write_run_config
     from .replica import TRAJ_NAME, write_replica_scene
 
     g = generate_scene(cfg.seed, cfg.rooms, cfg.frames, cfg.offset)
     with atomic_dir(cfg.out) as tmp:
         write_replica_scene(tmp, g["vertices"], g["quads"], g["face_object"], g["colors"], g["object_classes"])
         write_poses(tmp / TRAJ_NAME, g["T_world_cam"])
+        write_run_config(tmp / CONFIG_NAME, cfg)
     xy = g["T_world_cam"][:, :2, 3]
     return {"rooms": len(g["rooms"]), "faces": int(len(g["quads"])), "objects": len(g["object_classes"]),
             "classes": sorted({canonical_name(c) for c in g["object_classes"]}), "frames": len(xy),

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -21,27 +21,16 @@ from ..config import COVERAGE_TOL_M, MAX_PICTURE_PX
 from ..errors import PanovoccError
 from ..io.atomic import check_output_path, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
+from ..io.runconfig import config_path_beside, write_run_config
 from ..io.tables import write_csv
 from ..io.tables import write_tables as write_table_files
 from .metrics import HEADLINE_MASK, MASK_LABELS, MASKS, Result, evaluate, resolve_classes
 from .tables import counts_rows, table_rows
 
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, Path):
-        return str(x)
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, float) and math.isnan(x):
-        return None
-    return x
-
-
 def write_config(path: Path, cfg: Any) -> None:
-    """Save a resolved config as JSON next to the outputs, so the run can be repeated."""
-    write_text(path, json.dumps(_jsonable(asdict(cfg)), indent=2) + "\n")
+    """Save a resolved config as JSON next to the outputs, so the run can be repeated (io/runconfig.py)."""
+    write_run_config(path, cfg)
 
 
 # ----------------------------------------------------------------------------------------- eval
@@ -275,6 +264,7 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
     fig, size = panels_figure(images, legend, cfg.titles, cfg.width_px)
     with output_file(cfg.out_png):
         write_png(fig, cfg.out_png)
+    write_config(config_path_beside(cfg.out_png), cfg)
     return size
 
 

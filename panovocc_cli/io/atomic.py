@@ -180,9 +180,23 @@ def _is_within(inner: Path, outer: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
+def _is_map_config(path: Path) -> bool:
+    """A map's ``config.json`` (it has a ``geometry`` section); every stage writes a ``config.json`` beside its
+    outputs (io/runconfig.py), so the file name alone does not make a folder a map."""
+    import json
+
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and "geometry" in d
+
+
 def is_output_of_kind(path: str | Path, kind: str) -> bool:
     """Whether the folder ``path`` holds a marker file of a panovocc output of ``kind`` (see OUTPUT_MARKERS)."""
     path = Path(path)
+    if kind == "map":
+        return _is_map_config(path / "config.json")
     return any((path / m).is_file() for m in OUTPUT_MARKERS[kind])
 
 

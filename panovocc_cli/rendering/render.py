@@ -10,7 +10,7 @@ import os
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +68,7 @@ def run_render(cfg: RenderConfig) -> dict:
     from ..datasets.replica import TRAJ_NAME, read_replica_scene, scene_files, scene_paths
     from ..io.atomic import atomic_dir, check_output
     from ..io.poses import read_poses
+    from ..io.runconfig import CONFIG_NAME, write_run_config
     from ..io.images import write_png
     from ..io.sequence import SequenceMeta, frame_images, write_meta, write_sequence_poses
     from .noise import NOISE_PARAMS, degrade
@@ -108,6 +109,7 @@ def run_render(cfg: RenderConfig) -> dict:
     with atomic_dir(cfg.out) as tmp, ThreadPoolExecutor(max_workers=3) as pool:
         write_meta(tmp, meta)
         write_sequence_poses(tmp, poses)
+        write_run_config(tmp / CONFIG_NAME, replace(cfg, traj=traj))
         for d in ("rgb", "depth", "semantic"):
             (tmp / d).mkdir()
         pending: list = []
