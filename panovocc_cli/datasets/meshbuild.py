@@ -37,9 +37,6 @@ class Transform2D:
     def point(self, p) -> np.ndarray:
         return np.asarray(p, dtype=np.float64) @ self.R.T + self.t
 
-    def vec(self, v) -> np.ndarray:
-        return np.asarray(v, dtype=np.float64) @ self.R.T
-
 
 IDENTITY = Transform2D()
 

@@ -166,7 +166,7 @@ def _table(mb, pt, tf, w, d, h, leg=0.05, cls="table"):
                    tf, omit=("-z", "+z"), cell=0.2)
 
 
-def _chair(mb, pt, tf, paint):
+def _chair(mb, tf, paint):
     o = mb.new_object("chair")
     sw, sh = 0.44, 0.46
     mb.box(o, paint, (0, 0, sh - 0.02), (sw, sw, 0.04), tf, cell=0.15)
@@ -448,7 +448,7 @@ class _House:
             _table(self.mb, self.pt, tf, w, d, 0.75)
             paint = _pick(rng, [self.pt["wood"], self.pt["metal"], self.pt["white"]])
             for ctf, _ in chairs:
-                _chair(self.mb, self.pt, ctf, paint)
+                _chair(self.mb, ctf, paint)
             self.obstacles += boxes
             return True
         return False
@@ -534,7 +534,7 @@ class _House:
             return False
         tf, box, _, _ = spot
         _table(self.mb, self.pt, Transform2D(*tf.point([0, -0.6 + 0.3, 0])[:2], tf_yaw(tf)), dw, 0.6, 0.74)
-        _chair(self.mb, self.pt, Transform2D(*tf.point([0, 0.25, 0])[:2], tf_yaw(tf) + np.pi), self.pt["metal"])
+        _chair(self.mb, Transform2D(*tf.point([0, 0.25, 0])[:2], tf_yaw(tf) + np.pi), self.pt["metal"])
         self.obstacles.append(box)
         return True
 
@@ -700,7 +700,7 @@ class _House:
             self.obstacles.append(room.aabb(o.side, s0, s0 + 0.04, -0.01 - lw, -0.01))
 
     def _curtains(self, room: Room, o: Opening) -> None:
-        mb, rng = self.mb, self.rng
+        mb = self.mb
         c = mb.new_object("curtain")
         top = min(self.hc - 0.05, o.z1 + 0.15)
         n3 = np.array([*_NORMAL[o.side], 0.0])

@@ -128,7 +128,7 @@ def _read_binary_faces(raw: bytes, pos: int, el: PlyElement, end: str, path: Pat
     n = el.count
     if n == 0:
         return ([], [], {s: np.zeros(0, s_t) for s, s_t in el.scalars}, 0), pos
-    first = int(np.frombuffer(raw, dtype=end + ctype, count=1, offset=_offset_of_list(el, pos, raw, end))[0])
+    first = int(np.frombuffer(raw, dtype=end + ctype, count=1, offset=_offset_of_list(el, pos))[0])
     fields = []
     for pname in el.order:
         if pname == lname:
@@ -165,7 +165,7 @@ def _read_binary_faces(raw: bytes, pos: int, el: PlyElement, end: str, path: Pat
     return (faces, rows, props, n), pos
 
 
-def _offset_of_list(el: PlyElement, pos: int, raw: bytes, end: str) -> int:
+def _offset_of_list(el: PlyElement, pos: int) -> int:
     """Byte offset of the first face's list count (scalars before the list in file order)."""
     off = pos
     for pname in el.order:

@@ -67,12 +67,6 @@ def read_poses(path: str | Path) -> np.ndarray:
     return np.stack(poses)
 
 
-def read_tum_timestamps(path: str | Path) -> np.ndarray:
-    """Timestamps (N,) float64 of a TUM trajectory."""
-    path = Path(path)
-    return np.array([_floats(path, n, p)[0] for n, p in _rows(path)])
-
-
 def format_poses(T_world_cam: np.ndarray) -> str:
     """NICE-SLAM text: one line of 16 numbers a pose (row-major, full float64 precision)."""
     return "".join(" ".join(repr(float(x)) for x in T.reshape(-1)) + "\n" for T in np.asarray(T_world_cam))

@@ -135,11 +135,6 @@ def open3d_tsdf_pass(depths, poses, voxel_size: float, depth_max: float):
     return lambda: 1e3 * run(prepared) / len(depths)
 
 
-def open3d_tsdf_ms(depths, poses, voxel_size: float, depth_max: float) -> float:
-    """ms per panorama of one Open3D TSDF pass (see :func:`open3d_tsdf_pass`)."""
-    return open3d_tsdf_pass(depths, poses, voxel_size, depth_max)()
-
-
 def panovocc_update_pass(depths, poses, geo):
     """A callable that runs the geometric update (:func:`~.contributors.geometry_delta` then
     :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame.

@@ -38,12 +38,6 @@ RGB_SIGMA = 2.0  # grey levels
 NOISE_PARAMS = {k: v for k, v in dict(globals()).items() if k.isupper()}
 
 
-def incidence_angles(normals: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Angle (radians, 0..pi/2) between unit rays ``(..., 3)`` and surface normals ``(..., 3)``."""
-    c = np.abs(np.sum(normals * dirs, axis=-1))
-    return np.arccos(np.clip(c, 0.0, 1.0))
-
-
 def degrade(depth: np.ndarray, rgb: np.ndarray, incidence: np.ndarray, glass: np.ndarray, seed: int,
             frame: int) -> tuple[np.ndarray, np.ndarray]:
     """Degrade one clean ERP frame.

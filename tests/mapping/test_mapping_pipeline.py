@@ -10,7 +10,7 @@ from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
 from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
-from panovocc_cli.mapping.synthetic import ROOM, write_room_sequence
+from room_sequence import ROOM, write_room_sequence
 
 W = 128
 N = 5

@@ -250,7 +250,7 @@ def test_cli_semantic_map_no_gsc_precomputed_segeval(sem_seq, tmp_path, capsys):
 
 
 def test_cli_unlabelled_sequence_needs_a_segmenter(tmp_path, capsys):
-    from panovocc_cli.mapping.synthetic import write_room_sequence
+    from room_sequence import write_room_sequence
 
     run = _cli(capsys)
     seq = tmp_path / "plain"
