@@ -8,11 +8,12 @@ DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
 DEMO := work/demo
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: setup demo test bench bench-render clean help
+.PHONY: setup demo test test-quick bench bench-render clean help
 
 help:
 	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
-	@echo "make test   set up .venv, then run the test suite"
+	@echo "make test   set up .venv, then run the whole test suite"
+	@echo "make test-quick  the suite without the end-to-end runs marked slow (pytest -m 'not slow')"
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
 
@@ -40,6 +41,9 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest -q -p no:cacheprovider tests
+
+test-quick: setup
+	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow" tests
 
 bench: setup
 	$(BIN)/panovocc bench work/bench

@@ -1,6 +1,5 @@
 """GSC: graph construction, affinity, anchored diffusion, nearest-evidence transfer."""
 
-import time
 
 import numpy as np
 import pytest
@@ -151,14 +150,13 @@ def test_deterministic_and_order_independent():
     assert np.array_equal(consolidate(idx[perm], p[perm], S[perm], g[perm], nr[perm], col[perm]), la[perm])
 
 
-def test_a_slab_of_200k_voxels_consolidates_quickly():
+def test_a_slab_of_200k_voxels_consolidates():
+    """200k voxels consolidate to valid labels (GSC speed is measured in docs/semantics.md, not tested)."""
     rng = np.random.default_rng(0)
     idx = plane(500, 400)
     n = len(idx)
     p = rng.dirichlet(np.ones(12), n).astype(np.float32)
     S = rng.uniform(0, 5, n).astype(np.float32) * (rng.random(n) > 0.1)
-    t = time.perf_counter()
     out = consolidate(idx, p, S, np.zeros(n, np.float32), np.tile(np.float32([0, 0, 1]), (n, 1)),
                       rng.uniform(0, 255, (n, 3)).astype(np.float32))
-    assert time.perf_counter() - t < 10.0
-    assert out.shape == (n,) and (out >= 0).all()
+    assert out.shape == (n,) and (out >= 0).all() and (out < 12).all()
