@@ -14,33 +14,33 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from .config import DEFAULT_SEED, DEFAULT_WIDTH
+from .config import DEFAULT_SEED, DEFAULT_WIDTH, MIN_WIDTH, NOISE_MODELS, option
+from .errors import PanovoccError
 
 
 @dataclass
 class DemoConfig:
-    """Options of ``panovocc demo``.
+    """Options of ``panovocc demo`` (each field's help is its ``--help`` text).
 
-    out : working folder (scene/, seq/, gt.npz, map/, eval/, compare.png, coverage/)
-    seed : scene and segmenter seed; frames : trajectory poses; width : ERP width in pixels
+    out : working folder (scene/, seq/, gt.npz, map/, eval/, compare.png, coverage/, config.json)
+    seed : seed of the procedural scene, the render noise and the simulated segmenter
+    frames : trajectory poses (>= 2); width : ERP width in pixels (even, >= MIN_WIDTH)
     noise : depth noise of the render: none | realistic
     """
 
-    out: Path
-    seed: int = DEFAULT_SEED
-    frames: int = 60
-    width: int = DEFAULT_WIDTH
-    noise: str = "none"
+    out: Path = option(Path("work/demo"), argument=True, help="Working folder for every stage's outputs.")
+    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the procedural scene, render noise and segmenter.")
+    frames: int = option(60, min=2, help="Number of trajectory poses (frames).")
+    width: int = option(DEFAULT_WIDTH, min=MIN_WIDTH, even=True,
+                        help="ERP width in pixels (even; height = width / 2).")
+    noise: str = option("none", choices=NOISE_MODELS, help="Depth noise of the render: none | realistic.")
     progress: bool = True
-    overwrite: bool = False  # replace a previous demo's outputs in ``out`` (only a folder a demo wrote)
+    overwrite: bool = option(False, help="Replace a previous demo's outputs in OUT (never any other folder).")
 
 
 def check_demo_config(cfg: DemoConfig) -> None:
     """Refuse bad option values before any stage runs or writes (:class:`PanovoccError`)."""
-    from .config import MIN_WIDTH
-    from .errors import PanovoccError
     from .geometry.erp import check_erp_size
-    from .rendering.render import NOISE_MODELS
 
     if cfg.seed < 0:
         raise PanovoccError(f"--seed must be >= 0, got {cfg.seed}")
@@ -63,14 +63,19 @@ def _stage(name: str, fn: Callable[[], object], timings: dict[str, float], log) 
 
 
 def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
-    """Run every stage into ``cfg.out``; returns {"scores": eval output, "timings": {stage: s}, "paths": {...}}."""
+    """Run every stage into ``cfg.out``; returns {"scores": eval output, "timings": {stage: s}, "paths": {...}}.
+
+    Every stage saves its own resolved config beside its outputs; the demo's own goes to
+    ``OUT/config.json`` once all stages succeeded.
+    """
     from .datasets.synth import SynthConfig, run_synth
     from .evaluation.run import CoverageConfig, EvalConfig, ShowConfig, run_coverage, run_eval, run_show
     from .gt import GtConfig, run_gt
-    from .mapping.pipeline import MapConfig, run_map
-    from .rendering.render import RenderConfig, run_render
-
     from .io.atomic import check_output
+    from .io.runconfig import CONFIG_NAME, write_run_config
+    from .mapping.pipeline import MapConfig, run_map
+    from .mapping.semantic import SemanticParams
+    from .rendering.render import RenderConfig, run_render
 
     check_demo_config(cfg)
     out = Path(cfg.out)
@@ -82,7 +87,8 @@ def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
     _stage("render", lambda: run_render(RenderConfig(scene=scene, out=seq, width=cfg.width, noise=cfg.noise,
                                                      seed=cfg.seed, progress=cfg.progress,
                                                      overwrite=True)), t, log)
-    _stage("map", lambda: run_map(MapConfig(seq=str(seq), out=str(mapped)), overwrite=True,
+    sem = SemanticParams(seed=cfg.seed)  # the simulated segmenter's noise follows --seed too
+    _stage("map", lambda: run_map(MapConfig(seq=str(seq), out=str(mapped), semantic=sem), overwrite=True,
                                   progress=cfg.progress), t, log)
     pred = mapped / "prediction.npz"
     scores = _stage("eval", lambda: run_eval(EvalConfig(pairs=[(pred, gt)], classes="eval12",
@@ -91,6 +97,8 @@ def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
                                                titles=["PanOVOcc prediction", "ground truth"])), t, log)
     _stage("coverage", lambda: run_coverage(CoverageConfig(seq=seq, gt=gt, out_dir=out / "coverage",
                                                            progress=cfg.progress)), t, log)
+    write_run_config(out / CONFIG_NAME, cfg)
     paths = {"scene": scene, "sequence": seq, "ground_truth": gt, "map": mapped, "prediction": pred,
-             "tables": out / "eval", "picture": out / "compare.png", "coverage": out / "coverage" / "coverage.png"}
+             "tables": out / "eval", "picture": out / "compare.png", "coverage": out / "coverage" / "coverage.png",
+             "config": out / CONFIG_NAME}
     return {"scores": scores, "timings": t, "paths": paths}

@@ -19,11 +19,12 @@ except ImportError:  # pragma: no cover
 from ..errors import EXIT_BAD_INPUT, PanovoccError
 from ._app import app
 
-# Importing a module registers its commands on ``app``, in the order --help lists them.
-from . import data_cmds, map_cmds, eval_cmds, demo_cmds  # noqa: E402,F401,I001
+# Importing a module registers its commands on ``app``, in the order --help lists them. They are
+# imported by load_commands(), after runtime.setup(): their config dataclasses (the options' single
+# declaration) live in modules that import numba, which reads its settings when first imported.
+COMMAND_MODULES = ("data_cmds", "map_cmds", "eval_cmds", "demo_cmds")
 
 
-@app.command()
 def version() -> None:
     """Print the toolkit's version."""
     from .. import __version__
@@ -36,6 +37,18 @@ def _printable(text: str) -> str:
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
+def load_commands() -> typer.Typer:
+    """Register every command on :data:`app` (once) and return it."""
+    import importlib
+
+    if not getattr(app, "_panovocc_loaded", False):
+        for name in COMMAND_MODULES:
+            importlib.import_module(f"{__name__}.{name}")
+        app.command("version")(version)
+        app._panovocc_loaded = True
+    return app
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: expected failures print one line and exit 2; others keep their traceback.
 
@@ -44,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     from ..runtime import setup
 
     setup()
+    load_commands()
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
     except PanovoccError as e:

@@ -16,12 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import canonical_name
-from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH
+from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS
 from ..errors import PanovoccError
 from ..geometry.erp import check_erp_size
 
 BACKENDS = ("raycast", "pyrender")
-NOISE_MODELS = ("none", "realistic")
 
 
 @dataclass

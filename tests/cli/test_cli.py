@@ -49,3 +49,35 @@ def test_expected_failure_is_one_line(tmp_path: Path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and "missing.npz" in lines[0]
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("args", [["--width", "63"], ["--width", "0"], ["--noise", "foo"], ["--frames", "1"],
+                                  ["--seed", "-1"]])
+def test_demo_refuses_bad_options_before_any_stage_runs(tmp_path: Path, args):
+    r = run("demo", str(tmp_path / "d"), *args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len([ln for ln in r.stderr.splitlines() if ln.strip()]) == 1, r.stderr
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow
+def test_demo_two_frames_end_to_end(tmp_path: Path):
+    """The whole pipeline on 2 frames at 64x32: every stage's outputs and its config.json, the seed passed
+    on to the scene, the render noise and the simulated segmenter."""
+    import json
+
+    out = tmp_path / "demo"
+    r = run("demo", str(out), "--frames", "2", "--width", "64", "--seed", "1", "--noise", "realistic")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "mIoU" in r.stdout and "stage times" in r.stdout
+    for p in ("scene/habitat/mesh_semantic.ply", "seq/meta.json", "gt.npz", "map/prediction.npz",
+              "eval/scores.csv", "compare.png", "coverage/coverage.png"):
+        assert (out / p).is_file(), p
+    configs = {name: json.loads((out / name).read_text()) for name in (
+        "config.json", "scene/config.json", "seq/config.json", "gt.config.json", "map/config.json",
+        "eval/config.json", "compare.config.json", "coverage/config.json")}
+    assert configs["config.json"] == {"out": str(out), "seed": 1, "frames": 2, "width": 64, "noise": "realistic"}
+    assert configs["scene/config.json"]["seed"] == 1 and configs["scene/config.json"]["frames"] == 2
+    assert configs["seq/config.json"]["seed"] == 1 and configs["seq/config.json"]["width"] == 64
+    assert configs["map/config.json"]["semantic"]["seed"] == 1  # --seed reaches the segmenter
+    assert configs["gt.config.json"]["voxel_size"] == 0.08
