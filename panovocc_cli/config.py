@@ -20,6 +20,8 @@ DEFAULT_SEED = 0
 """Seed of every random choice (scene generator, render noise, simulated segmenter) unless given."""
 DEFAULT_VOXEL_SIZE = 0.08
 """Voxel edge length h, metres: the paper's and ReplicaOcc/FreeOcc's resolution."""
+MAX_VOXEL_SIZE = 10.0
+"""Largest voxel edge a command accepts, metres."""
 DEFAULT_WIDTH = 1024
 """ERP width W in pixels (height = W / 2)."""
 MIN_WIDTH = 64
@@ -74,13 +76,14 @@ class Opt:
     metavar: str | None = None
     negate: bool = False
     show_default: bool | str = True
+    cli_optional: bool = False
 
 
 def option(default: Any = MISSING, *, help: str, default_factory: Any = MISSING, flag: str | None = None,
            argument: bool = False, min: float | None = None, max: float | None = None, min_open: bool = False,
            choices: Sequence[str] | None = None, even: bool = False, cli_type: Any = None,
            parse: Callable[[Any], Any] | None = None, metavar: str | None = None, negate: bool = False,
-           show_default: bool | str = True) -> Any:
+           show_default: bool | str = True, cli_optional: bool = False) -> Any:
     """A ``dataclasses.field`` that is also a command-line parameter.
 
     Parameters
@@ -97,10 +100,13 @@ def option(default: Any = MISSING, *, help: str, default_factory: Any = MISSING,
     metavar : the name shown for an argument's value
     negate : a bool field set by a flag that means "not" (``--no-gsc`` sets ``use_gsc=False``)
     show_default : False, or a text shown in place of the default
+    cli_optional : a field without a default that the command line may leave out (None; the command
+        decides, e.g. ``map --resume OUT`` without SEQ)
     """
     meta = {OPT_KEY: Opt(help=help, flag=flag, argument=argument, min=min, max=max, min_open=min_open,
                          choices=tuple(choices) if choices is not None else None, even=even, cli_type=cli_type,
-                         parse=parse, metavar=metavar, negate=negate, show_default=show_default)}
+                         parse=parse, metavar=metavar, negate=negate, show_default=show_default,
+                         cli_optional=cli_optional)}
     if default_factory is not MISSING:
         return dataclasses.field(default_factory=default_factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)

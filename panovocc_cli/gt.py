@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS
+from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS, MAX_VOXEL_SIZE, option
 from .errors import PanovoccError
 from .geometry.lattice import bounds_to_grid, index_to_center
 from .grid import OCCUPIED_UNKNOWN_CLASS, Grid
@@ -230,10 +230,12 @@ def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:
 class GtConfig:
     """Options of ``panovocc gt``: scene (Replica-format folder), out (.npz), voxel_size (metres), overwrite."""
 
-    scene: Path
-    out: Path
-    voxel_size: float = DEFAULT_VOXEL_SIZE
-    overwrite: bool = False  # replace an existing OUT file
+    scene: Path = option(argument=True, metavar="SCENE", help="Replica-format scene folder.")
+    out: Path = option(argument=True, metavar="OUT",
+                       help="Ground-truth grid to write (.npz: labels, origin, voxel_size, class_names).")
+    voxel_size: float = option(DEFAULT_VOXEL_SIZE, min=0, min_open=True, max=MAX_VOXEL_SIZE,
+                               help="Voxel edge length in metres.")
+    overwrite: bool = option(False, help="Replace an existing OUT file (never an input).")
 
 
 def run_gt(cfg: GtConfig) -> dict:

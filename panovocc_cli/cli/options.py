@@ -75,7 +75,7 @@ def option_specs(config_cls: type, only: Sequence[str] | None = None, exclude: S
         elif f.default_factory is not MISSING:
             default = f.default_factory()
         else:
-            default = ...
+            default = None if o.cli_optional else ...
         specs.append(_Spec(f.name, f.name, hints[f.name], default, o))
     return specs
 
@@ -106,7 +106,7 @@ def _bounds_words(o: Opt) -> str:
 def _help(spec: _Spec) -> str:
     o = spec.opt
     text = o.help + _range_text(o)
-    if o.choices and "|" not in o.help:
+    if o.choices and not all(c in o.help for c in o.choices):
         text += f" ({' | '.join(o.choices)})"
     return text
 
@@ -126,9 +126,9 @@ def _typer_param(spec: _Spec) -> tuple[Any, Any]:
         kw.setdefault("show_default", str(default))  # the field keeps its own default (see check_value)
         default, optional = None, True
     ann = Optional[cli_type] if (optional or default is None) else cli_type
+    if o.metavar:
+        kw["metavar"] = o.metavar
     if o.argument:
-        if o.metavar:
-            kw["metavar"] = o.metavar
         return ann, typer.Argument(default, **kw)
     if cli_type is bool:
         return bool, typer.Option(bool(default), _flag(spec), **kw)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import EVAL8, OPEN4, canonical_name
-from ..config import DEFAULT_SEED
+from ..config import DEFAULT_SEED, option
 from ..errors import PanovoccError
 from ..geometry.poses import look_at
 from .meshbuild import MeshBuilder, Paint, Transform2D
@@ -52,11 +52,15 @@ class SynthConfig:
     from the origin (a user-chosen placement relative to the voxel lattice; None: drawn from the seed).
     """
 
-    out: Path
-    seed: int = DEFAULT_SEED
-    rooms: int | None = None
-    frames: int = 60
-    offset: tuple[float, float, float] | None = None
+    out: Path = option(argument=True, metavar="SCENE", help="Scene folder to write (Replica layout: "
+                       "habitat/mesh_semantic.ply, habitat/info_semantic.json, traj.txt).")
+    seed: int = option(DEFAULT_SEED, min=0, help="Random seed; the same seed gives the same files.")
+    rooms: int | None = option(None, min=1, max=6, help="Number of rooms, 1-6 (default: 2 or 3 from the seed).")
+    frames: int = option(60, min=2, help="Number of trajectory poses.")
+    offset: tuple[float, float, float] | None = option(
+        None, cli_type=str, parse=lambda text: parse_offset(text), metavar="X,Y,Z",
+        help="X,Y,Z metres: move the home (laid out from the origin) by this offset instead of the seeded one "
+             "(e.g. 0,0,0 puts the floor on a voxel face).")
 
 
 @dataclass

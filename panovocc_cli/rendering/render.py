@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import canonical_name
-from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS
+from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS, option
 from ..errors import PanovoccError
 from ..geometry.erp import check_erp_size
 
@@ -34,17 +34,22 @@ class RenderConfig:
     folder holding meta.json; never one holding an input).
     """
 
-    scene: Path
-    out: Path
-    traj: Path | None = None
-    width: int = DEFAULT_WIDTH
-    backend: str = "raycast"
-    every: int = 1
-    noise: str = "none"
-    seed: int = DEFAULT_SEED
-    threads: int = 0
+    scene: Path = option(argument=True, metavar="SCENE",
+                         help="Replica-format scene folder (habitat/mesh_semantic.ply + info_semantic.json).")
+    out: Path = option(argument=True, metavar="SEQ",
+                       help="Sequence folder to write (meta.json, rgb/, depth/, semantic/, poses.txt).")
+    traj: Path | None = option(None, help="Trajectory, NICE-SLAM (16 numbers a line) or TUM; default SCENE/traj.txt.")
+    width: int = option(DEFAULT_WIDTH, min=MIN_WIDTH, even=True, help="ERP width in pixels (even; height = width / 2).")
+    backend: str = option("raycast", choices=BACKENDS, help="raycast (exact spherical rays, Open3D) or pyrender "
+                          "(six rasterised cube faces, OSMesa).")
+    every: int = option(1, min=1, help="Render every k-th pose.")
+    noise: str = option("none", choices=NOISE_MODELS, help="none, or realistic: range-dependent depth noise (metres), "
+                        "dropouts, no depth on glass, edge bleeding.")
+    seed: int = option(DEFAULT_SEED, min=0, help="Noise seed.")
+    threads: int = option(0, min=0, help="Ray-casting threads (0 = all cores).")
     progress: bool = True
-    overwrite: bool = False  # replace a previous sequence in ``out`` (never another kind of folder, never an input)
+    overwrite: bool = option(False, help="Replace a previous panovocc sequence in SEQ (never any other folder, "
+                                         "never an input).")
 
 
 def make_renderer(scene, width: int, backend: str, threads: int = 0):
