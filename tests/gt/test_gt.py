@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from panovocc_cli.datasets.scene import Scene, split_polygons
 from panovocc_cli.geometry.lattice import origin_to_index
@@ -88,6 +89,7 @@ def test_area_vote_picks_the_larger_surface():
     assert g.labels[0, 0, 0] == 254
 
 
+@pytest.mark.slow
 def test_gt_cli_end_to_end(tmp_path):
     exe = str(Path(sys.executable).parent / "panovocc")
     r = subprocess.run([exe, "synth", str(tmp_path / "s"), "--seed", "2", "--rooms", "1", "--frames", "5"],

@@ -9,6 +9,7 @@ from panovocc_cli.errors import PanovoccError
 from panovocc_cli.mapping.bench import BenchConfig, cube_face_maps, cube_faces, run_bench
 
 
+@pytest.mark.slow
 def test_bench_end_to_end(tmp_path):
     res = run_bench(BenchConfig(out=str(tmp_path), frames=3, width=128, repeats=2, process_repeats=1))
     saved = json.loads((tmp_path / "bench.json").read_text())

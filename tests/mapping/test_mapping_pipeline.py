@@ -66,6 +66,7 @@ def test_point_kernel_ablation_runs(room_seq, tmp_path):
     assert s["occupied"] > 300
 
 
+@pytest.mark.slow
 def test_revise_wrong_poses_to_right_equals_direct(room_seq, tmp_path):
     direct = tmp_path / "direct"
     run_map(_cfg(room_seq, direct), progress=False)
@@ -98,6 +99,7 @@ def test_revise_wrong_poses_to_right_equals_direct(room_seq, tmp_path):
     assert (rev / "memory.npz").read_bytes() == (direct / "memory.npz").read_bytes()
 
 
+@pytest.mark.slow
 def test_resume_after_kill_gives_same_bytes(room_seq, tmp_path):
     full = tmp_path / "full"
     run_map(_cfg(room_seq, full), progress=False)
@@ -109,6 +111,7 @@ def test_resume_after_kill_gives_same_bytes(room_seq, tmp_path):
     assert _bytes(part) == _bytes(full)
 
 
+@pytest.mark.slow
 def test_cli_map_revise_and_bad_input(room_seq, tmp_path, capsys):
     from panovocc_cli.cli import main
 

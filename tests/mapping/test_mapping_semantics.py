@@ -121,6 +121,7 @@ def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
     assert np.all(got["count"][:, 0] > 0)
 
 
+@pytest.mark.slow
 def test_revise_and_resume_exact_with_semantics(sem_seq, default_map, tmp_path):
     direct, _ = default_map
     true = _poses(N)
@@ -149,6 +150,7 @@ def test_revise_and_resume_exact_with_semantics(sem_seq, default_map, tmp_path):
     assert _bytes(part) == _bytes(direct)
 
 
+@pytest.mark.slow
 def test_one_class_and_unknown_word_vocabularies(sem_seq, default_map, tmp_path):
     _, s_def = default_map
     s = run_map(_cfg(sem_seq, tmp_path / "one", vocab="chair"), progress=False)
@@ -200,6 +202,7 @@ def _cli(capsys):
     return run
 
 
+@pytest.mark.slow
 def test_cli_semantic_map_no_gsc_precomputed_segeval(sem_seq, tmp_path, capsys):
     run = _cli(capsys)
     o = tmp_path / "ng"

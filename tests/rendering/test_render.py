@@ -140,6 +140,7 @@ def scene_dir(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_render_cli_end_to_end(scene_dir):
     seq = scene_dir / "seq"
     r = subprocess.run([EXE, "render", str(scene_dir / "scene"), str(seq), "--width", "128", "--every", "2",
