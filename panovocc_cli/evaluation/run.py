@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..config import COVERAGE_TOL_M, MAX_PICTURE_PX
+from ..config import COVERAGE_TOL_M, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_VOXEL_SIZE, option
 from ..errors import PanovoccError
 from ..io.atomic import check_output_path, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
@@ -45,9 +45,11 @@ class EvalConfig:
     """
 
     pairs: list[tuple[Path, Path]] = field(default_factory=list)
-    classes: str = "eval8"
-    mask: str = HEADLINE_MASK
-    out_dir: Path | None = None
+    classes: str = option("eval8", help="Class set for mIoU: eval8 | open4 | eval12 | all | comma list (a,b,c).")
+    mask: str = option(HEADLINE_MASK, choices=MASKS,
+                       help="Mask for the --json top level: freeocc (headline) | observed.")
+    out_dir: Path | None = option(None, flag="--out",
+                                  help="Folder for scores.csv/.md/.tex, counts.csv, scores.json, config.json.")
 
 
 def run_eval(cfg: EvalConfig) -> dict[str, Any]:
@@ -174,14 +176,21 @@ class CoverageConfig:
     tol_m : metres; a depth point this close to a voxel face also observes the voxel across it
     """
 
-    seq: Path
-    gt: Path
-    out_dir: Path
-    hfov_deg: float = 90.0
-    vfov_deg: float | None = None
-    aspect: float = 1200.0 / 680.0
-    every: int = 1
-    tol_m: float = COVERAGE_TOL_M
+    seq: Path = option(argument=True, metavar="SEQ",
+                       help="Panoramic (ERP) sequence folder: depth/ and poses.txt are used.")
+    gt: Path = option(argument=True, metavar="GT",
+                      help="Ground-truth grid .npz (its occupied voxels are the denominator).")
+    out_dir: Path = option(flag="--out", help="Output folder for coverage.csv, coverage.png, config.json.")
+    hfov_deg: float = option(90.0, flag="--fov-deg", min=0, min_open=True, max=179,
+                             help="Perspective camera horizontal field of view, degrees.")
+    vfov_deg: float | None = option(None, min=0, min_open=True, max=179,
+                                    help="Perspective vertical field of view, degrees (default: from --aspect).")
+    aspect: float = option(1200.0 / 680.0, min=0, min_open=True,
+                           help="Perspective image width/height, used when --vfov-deg is not given "
+                                "(default: Replica's 1200x680).")
+    every: int = option(1, min=1, help="Use every K-th frame (the last frame is always used).")
+    tol_m: float = option(COVERAGE_TOL_M, min=0, help="Metres: a depth point this close to a voxel face also "
+                                                      "observes the voxel across it.")
     progress: bool = True
 
 
@@ -239,9 +248,10 @@ class ShowConfig:
 
     grids: list[Path]
     out_png: Path
-    cut_top: int = 0
-    titles: list[str] | None = None
-    width_px: int = 1600
+    cut_top: int = option(0, min=0, help="Remove the top K voxel layers (to look into rooms).")
+    titles: list[str] | None = option(None, cli_type=str, parse=lambda s: [t.strip() for t in s.split(",")],
+                                      help="Comma-separated panel titles, one per grid.")
+    width_px: int = option(1600, min=64, max=MAX_PICTURE_PX, help="PNG width in pixels.")
 
 
 def run_show(cfg: ShowConfig) -> tuple[int, int]:
@@ -290,12 +300,18 @@ class ConvertReplicaOccConfig:
     allow_shift : translate an off-lattice grid onto the lattice
     """
 
-    pkl: Path
-    out_npz: Path
-    class_names: str | None = None
-    voxel_size: float | None = None
-    tol_m: float | None = None
-    allow_shift: bool = False
+    pkl: Path = option(argument=True, metavar="PKL",
+                       help="ReplicaOcc/FreeOcc global_occ_package/<scene>.pkl (dense or flat form).")
+    out_npz: Path = option(argument=True, metavar="OUT_NPZ", help="Output grid .npz.")
+    class_names: str | None = option(
+        None, help="Names of the label ids: a text file (one a line), 'replica' or a comma list; ids 1.. unless the "
+                   "first name is empty/free/unlabeled (then ids 0..). Default: the file's class_names key, else "
+                   "FreeOcc's replica_name.txt (101).")
+    voxel_size: float | None = option(
+        None, min=0, min_open=True, max=MAX_VOXEL_SIZE,
+        help=f"Voxel edge, metres (default: the file's voxel_size key, else {DEFAULT_VOXEL_SIZE}).")
+    tol_m: float | None = option(None, min=0, help="Metres a centre may be off the lattice (default: a quarter voxel).")
+    allow_shift: bool = option(False, help="Translate an off-lattice grid onto the lattice.")
 
 
 def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
@@ -329,11 +345,16 @@ class ConvertToReplicaOccConfig:
         index-by-index comparison lines up; None: the grid's own extent
     """
 
-    grid: Path
-    out_pkl: Path
-    ids: str = "replica"
-    prediction: bool = False
-    like: Path | None = None
+    grid: Path = option(argument=True, metavar="GRID", help="Grid .npz (ground truth or prediction).")
+    out_pkl: Path = option(argument=True, metavar="OUT_PKL",
+                           help="Output .pkl in FreeOcc's dense global_occ_package form.")
+    ids: str = option("replica", choices=("replica", "own"),
+                      help="Label ids to write: replica (FreeOcc's, 1 + line of replica_name.txt, matched by name) | "
+                           "own (the grid's).")
+    prediction: bool = option(False, help="The grid is a prediction: write unknown (255) as 0, since FreeOcc's "
+                                          "scripts count every label > 0 as occupied.")
+    like: Path | None = option(None, help="Ground-truth grid .npz whose voxels to write (FreeOcc compares arrays "
+                                          "index by index).")
 
 
 def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
