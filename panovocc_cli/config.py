@@ -22,6 +22,8 @@ DEFAULT_VOXEL_SIZE = 0.08
 """Voxel edge length h, metres: the paper's and ReplicaOcc/FreeOcc's resolution."""
 MAX_VOXEL_SIZE = 10.0
 """Largest voxel edge a command accepts, metres."""
+MAX_STRIDE = 64
+"""Largest pixel stride of the mapper's kernel lift (a 1024-wide panorama keeps 16 samples around)."""
 MAX_PICTURE_PX = 16384
 """Largest picture width in pixels (``show --width-px``)."""
 DEFAULT_WIDTH = 1024

@@ -38,9 +38,11 @@ from ..errors import PanovoccError
 
 
 class OptionValues(dict):
-    """Checked option values by field name; ``given`` holds the names set on the command line."""
+    """Checked option values by field name; ``given`` holds the names set on the command line, ``flags``
+    each name's option (``--voxel-size``) or argument (``SEQ``) as the user types it."""
 
     given: frozenset = frozenset()
+    flags: dict = {}
 
 
 @dataclass(frozen=True)
@@ -153,7 +155,7 @@ def check_value(spec: _Spec, value: Any) -> Any:
             raise PanovoccError(f"{name} must be a number, got {value}")
         lo_bad = o.min is not None and (value <= o.min if o.min_open else value < o.min)
         if lo_bad or (o.max is not None and value > o.max):
-            raise PanovoccError(f"{name} must be {_bounds_words(o)}, got {value:g}")
+            raise PanovoccError(f"{name} must be {_bounds_words(o)}, got {value if isinstance(value, int) else f'{value:g}'}")
         if o.even and int(value) % 2:
             raise PanovoccError(f"{name} must be even, got {value}")
     if o.parse is not None:
@@ -227,6 +229,7 @@ def config_command(app: typer.Typer, config_cls: type, name: str | None = None, 
                     given.add(s.name)
                 values[s.field] = check_value(s, raw)
             values.given = frozenset(given)
+            values.flags = {s.field: (s.opt.metavar or s.field.upper()) if s.opt.argument else _flag(s) for s in specs}
             return fn(values, **kwargs)
 
         # the context parameter goes first for Typer; the rest keep their order
@@ -244,9 +247,10 @@ def config_command(app: typer.Typer, config_cls: type, name: str | None = None, 
 
 
 def build_config(config_cls: type, values: dict, **extra) -> Any:
-    """``config_cls(**values, **extra)`` keeping only the fields the class has (for nested configs)."""
-    names = {f.name for f in dataclasses.fields(config_cls)}
-    return config_cls(**{k: v for k, v in {**values, **extra}.items() if k in names})
+    """``config_cls(**extra, **options)``: the values of ``config_cls``'s own command-line fields taken from
+    ``values`` (the flattened options of a command with nested configs), the rest from ``extra``."""
+    own = {s.field for s in option_specs(config_cls)}
+    return config_cls(**{k: v for k, v in values.items() if k in own}, **extra)
 
 
 def parse_comma_list(text: str | None) -> list[str] | None:

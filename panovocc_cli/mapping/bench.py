@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, DEFAULT_WIDTH
+from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, DEFAULT_WIDTH, MIN_WIDTH, option
 from ..errors import PanovoccError
 from ..io.atomic import write_text
 from ..io.sequence import Sequence, read_meta
@@ -39,9 +39,11 @@ TRUNC_VOXELS = 3.0  # Open3D TSDF truncation, voxels (its default is 8; 3 is the
 
 @dataclass
 class BenchConfig:
-    out: str  # working folder
-    frames: int = 40
-    width: int = DEFAULT_WIDTH  # ERP width, pixels
+    out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUTDIR",
+                      help="Working folder (the rendered sequence, the map, bench.json).")
+    frames: int = option(40, min=2, help="Frames of the benchmark sequence.")
+    width: int = option(DEFAULT_WIDTH, min=MIN_WIDTH, even=True,
+                        help="ERP width of the benchmark sequence, pixels (height = width / 2).")
     voxel_size: float = DEFAULT_VOXEL_SIZE  # metres
     seed: int = DEFAULT_SEED
     repeats: int = 5  # timed passes of each side (median reported)

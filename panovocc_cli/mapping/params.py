@@ -7,26 +7,34 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..config import DEFAULT_VOXEL_SIZE
+from ..config import DEFAULT_VOXEL_SIZE, MAX_VOXEL_SIZE, option
+
+KERNELS = ("psvf", "point")
+RULES = ("frequency", "score")
 
 
 @dataclass(frozen=True)
 class GeometryParams:
     """Parameters of the geometry contributor (defaults and reasons: docs/mapping.md)."""
 
-    voxel_size: float = DEFAULT_VOXEL_SIZE  # metres
+    voxel_size: float = option(DEFAULT_VOXEL_SIZE, min=0, min_open=True, max=MAX_VOXEL_SIZE,
+                               help="Voxel edge length h, metres.")
     stride: int = 4  # pixels between samples of the kernel lift
-    kernel: str = "psvf"  # "psvf" or "point"
-    alpha: float = 0.0025  # radial kernel scale: alpha * r + beta (dimensionless)
-    beta: float = 0.0025  # metres
-    kappa: float = 1.5  # Mahalanobis truncation radius (of the tangential Gaussian for box / surfel)
+    kernel: str = option("psvf", choices=KERNELS,
+                         help="Surface kernel: psvf (anisotropic Gaussian) or point (ablation).")
+    alpha: float = option(0.0025, min=0,
+                          help="Radial kernel scale alpha in sigma_r = alpha r + beta (dimensionless).")
+    beta: float = option(0.0025, min=0, help="Radial kernel scale beta, metres.")
+    # Mahalanobis truncation radius (of the tangential Gaussian for box / surfel)
+    kappa: float = option(1.5, min=0, min_open=True, max=10, help="Mahalanobis truncation radius kappa (dimensionless).")
     w_pole: float = 0.5  # latitude weight at the poles (1 at the equator)
     r_half: float = 8.0  # metres; range weight 1 / (1 + r / r_half)
-    eps_abs: float = 0.07  # metres; free-space margin eps(r) = eps_abs + eps_rel r
-    eps_rel: float = 0.01
+    eps_abs: float = option(0.07, min=0, help="Free-space margin eps_abs in eps(r) = eps_abs + eps_rel r, metres.")
+    eps_rel: float = option(0.01, min=0, help="Free-space margin eps_rel (dimensionless, per metre of range).")
     stable_k: float = 2.0  # neighbour depths within stable_k * eps(r) count as stable
     min_range: float = 0.1  # metres; depths and voxels nearer than this are ignored
-    max_range: float = 12.0  # metres; depths and voxels farther than this are ignored
+    max_range: float = option(12.0, min=0, min_open=True,
+                              help="Depths and voxels farther than this are ignored, metres.")
     extent: str = "surfel"  # "surfel": kernel on the local surface plane, factor P(plane through the voxel box);
     # "box": radial factor = P(ray coordinate in the voxel's chord); "centre": the paper's
     n_fill: float = 0.4  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
@@ -56,10 +64,13 @@ class OccupancyParams:
     N > 0 and ``g >= tau_s``, or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f``.
     """
 
-    rule: str = "frequency"
-    nu: float = 0.06  # frequency rule: least signed share of a voxel's valid observations that saw surface in it
-    lambda_n: float = 0.1  # frequency rule: weight of the free-space share
-    lambda_f: float = 1.0  # weight of the free-space ratio in g
-    tau_s: float = 0.12  # strong support: accepted whatever the free-space ratio
-    tau_w: float = 0.04  # weak support: accepted only if F / max(O, 1) <= gamma_f
-    gamma_f: float = 0.6  # largest admissible free-space ratio for weak support
+    rule: str = option("frequency", choices=RULES,
+                       help="Occupancy rule: frequency (N/O - lambda_n F/O >= nu) or score (the paper's g with "
+                            "tau_s, tau_w, gamma_f).")
+    nu: float = option(0.06, min=0, max=1, help="Frequency rule: least share of valid observations that saw "
+                                                 "surface in the voxel (0..1).")
+    lambda_n: float = option(0.1, min=0, help="Frequency rule: weight of the free-space share F/O.")
+    lambda_f: float = option(1.0, min=0, help="Score rule: weight lambda_f of the free-space ratio in the signed score.")
+    tau_s: float = option(0.12, help="Score rule: strong support threshold tau_s on g (per-frame support units).")
+    tau_w: float = option(0.04, help="Score rule: weak support threshold tau_w on g.")
+    gamma_f: float = option(0.6, min=0, max=1, help="Score rule: largest free-space ratio F/O for weak support (0..1).")

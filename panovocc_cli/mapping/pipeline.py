@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import MAX_STRIDE
+from ..config import MAX_STRIDE, option
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
@@ -57,13 +57,18 @@ class MapConfig:
     (``geometry``, ``occupancy``, the rest of ``semantic``): :meth:`mapper_config`.
     """
 
-    seq: str  # sequence folder (CONVENTIONS.md layout)
-    out: str  # output folder
-    poses: str | None = None  # pose file; None = SEQ/poses.txt
-    checkpoint_every: int = 25  # frames between memory checkpoints (0 = only at the end)
+    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ", cli_optional=True,
+                      help="Sequence folder (CONVENTIONS.md layout); omit with --resume.")
+    out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT", cli_optional=True,
+                      help="Output folder for the memory, prediction.npz and map.ply.")
+    poses: str | None = option(None, cli_type=Path, parse=str,
+                               help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt.")
+    checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
     geometry: GeometryParams = field(default_factory=GeometryParams)
     occupancy: OccupancyParams = field(default_factory=OccupancyParams)
-    stride: int = 0  # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
+    # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
+    stride: int = option(0, min=0, max=MAX_STRIDE,
+                         help="Pixel stride s of the kernel lift; 0 = auto, max(1, W // 256) (4 at 1024).")
     # segmenter, vocabulary, GSC; the default "auto" = simulated when the sequence has labels, else none
     semantic: SemanticParams = field(default_factory=SemanticParams)
 

@@ -36,7 +36,7 @@ from typing import Sequence as Seq
 
 import numpy as np
 
-from ..config import DEFAULT_SEED
+from ..config import DEFAULT_SEED, option
 from ..errors import PanovoccError
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.evidence import EvidenceWeights
@@ -74,12 +74,19 @@ class SemanticParams:
         ``height``
     """
 
-    segmenter: str = SEGMENTER_AUTO
-    vocab: object = None
-    noise: float = 1.0
-    seed: int = DEFAULT_SEED
-    use_gsc: bool = True
-    ply_color: str = "class"
+    segmenter: str = option(SEGMENTER_AUTO, show_default=False,
+                            help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none "
+                                 "(geometry only, occupied voxels 254). Default: simulated when SEQ has labels, else "
+                                 "you must choose.")
+    vocab: object = option(None, cli_type=str, help="Vocabulary chosen at run time: class names and sets, comma- or "
+                                                    "+-separated (eval8, open4, eval12, e.g. 'eval8,pillow'); "
+                                                    "default eval8,open4.")
+    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 1 = default realistic "
+                                           "errors, 0 = exact).")
+    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    use_gsc: bool = option(True, flag="--no-gsc", negate=True, help="Ablation: raw argmax of the fused evidence, no GSC.")
+    ply_color: str = option("class", choices=PLY_COLORS, help="map.ply colours: class (class colours, grey = no class) "
+                                                              "| rgb (mean pixel colour) | height.")
     gsc: GSCParams = field(default_factory=mapper_gsc_params)
     weights: EvidenceWeights = field(default_factory=EvidenceWeights)
 
@@ -278,13 +285,14 @@ def relabel_from_ground_truth(pred: Grid, gt: Grid, max_dist_vox: float = 0.0) -
 class SegevalConfig:
     """``panovocc segeval``: the segmenter's own per-frame 2D mIoU on a labelled sequence."""
 
-    seq: str
-    segmenter: str = "simulated"
-    vocab: object = None
-    noise: float = 1.0
-    seed: int = DEFAULT_SEED
-    classes: str = "eval8"
-    every: int = 1  # score frames 0, every, 2 every, ...
+    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ",
+                      help="Sequence folder with ground-truth labels (semantic/).")
+    segmenter: str = option("simulated", help="Segmenter to score: simulated | precomputed:DIR.")
+    vocab: object = option(None, cli_type=str, help="Vocabulary (as for map); default eval8,open4.")
+    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
+    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    classes: str = option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c).")
+    every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
 
 
 def run_segeval(cfg: SegevalConfig, progress: bool = True):
