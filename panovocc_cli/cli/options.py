@@ -28,12 +28,11 @@ import dataclasses
 import inspect
 import typing
 from dataclasses import MISSING, dataclass
-from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
 import typer
 
-from ..config import OPT_KEY, Opt, option  # noqa: F401 (option: re-exported for the command modules)
+from ..config import OPT_KEY, Opt
 from ..errors import PanovoccError
 
 
@@ -251,12 +250,3 @@ def build_config(config_cls: type, values: dict, **extra) -> Any:
     ``values`` (the flattened options of a command with nested configs), the rest from ``extra``."""
     own = {s.field for s in option_specs(config_cls)}
     return config_cls(**{k: v for k, v in values.items() if k in own}, **extra)
-
-
-def parse_comma_list(text: str | None) -> list[str] | None:
-    """``"a, b,c"`` -> ``["a", "b", "c"]`` (None stays None)."""
-    return None if text is None else [t.strip() for t in str(text).split(",")]
-
-
-def to_path(x: Any) -> Path | None:
-    return None if x is None else Path(x)
