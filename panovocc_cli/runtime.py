@@ -20,12 +20,15 @@ What it does, and why (figures: docs/mapping.md, "Speed"):
 * glibc ``mallopt``: keep freed memory in the process (:func:`keep_freed_heap`).
 
 Environment values the user already set are kept (``OMP_WAIT_POLICY=active panovocc map ...`` spins).
-Calling :func:`setup` again does nothing more.
+Calling :func:`setup` again does nothing more. Called after numba was imported, it makes numba read its
+settings again; it must still come before the first parallel kernel runs (libgomp reads
+``OMP_WAIT_POLICY`` once, when it is loaded).
 """
 
 from __future__ import annotations
 
 import os
+import sys
 
 ENV_DEFAULTS = {
     "NUMBA_THREADING_LAYER_PRIORITY": "omp workqueue tbb",
@@ -75,5 +78,8 @@ def setup() -> dict:
     global _done
     if _done is None:
         env = {k: os.environ.setdefault(k, v) for k, v in ENV_DEFAULTS.items()}
+        numba_config = sys.modules.get("numba.core.config")
+        if numba_config is not None:  # numba was imported first: it read its settings then; read them again
+            numba_config.reload_config()
         _done = {"env": env, "heap": keep_freed_heap()}
     return _done

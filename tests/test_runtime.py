@@ -44,3 +44,11 @@ def test_the_command_line_calls_setup():
             "except SystemExit:\n    pass\n"
             "print(os.environ.get('OMP_WAIT_POLICY'), os.environ.get('NUMBA_THREADING_LAYER_PRIORITY'))\n")
     assert _run(code, _env()).splitlines()[-1] == "passive omp workqueue tbb"
+
+
+def test_setup_after_numba_was_imported_still_sets_its_threading_order():
+    code = ("import numba, panovocc_cli.mapping.contributors\n"
+            "import panovocc_cli.runtime as rt\n"
+            "rt.setup()\n"
+            "print(' '.join(numba.config.THREADING_LAYER_PRIORITY))\n")
+    assert _run(code, _env()).strip() == "omp workqueue tbb"
