@@ -14,12 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import DEFAULT_VOXEL_SIZE
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m panovocc_cli.mapping.o3d_tsdf", description=__doc__.splitlines()[0])
     ap.add_argument("seq")
     ap.add_argument("out")
-    ap.add_argument("--voxel-size", type=float, default=0.08)
+    ap.add_argument("--voxel-size", type=float, default=DEFAULT_VOXEL_SIZE)
     ap.add_argument("--depth-max", type=float, default=10.0)
     a = ap.parse_args(argv)
 
