@@ -16,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import DEFAULT_WIDTH
 
-def bench(scene_dir: Path, width: int = 1024, frames: int = 60, reps: int = 3) -> dict:
+
+def bench(scene_dir: Path, width: int = DEFAULT_WIDTH, frames: int = 60, reps: int = 3) -> dict:
     import open3d as o3d
 
     from ..datasets.replica import read_replica_scene
@@ -61,7 +63,7 @@ def main() -> None:
     setup()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene", type=Path)
-    ap.add_argument("--width", type=int, default=1024)
+    ap.add_argument("--width", type=int, default=DEFAULT_WIDTH)
     ap.add_argument("--frames", type=int, default=60)
     a = ap.parse_args()
     r = bench(a.scene, a.width, a.frames)
