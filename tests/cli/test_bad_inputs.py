@@ -736,6 +736,7 @@ def test_really_full_disk(capsys, base, small_tmpfs, writer):
 # Paths that are not UTF-8 work (they crashed OpenCV with SIGSEGV): child processes
 
 
+@pytest.mark.slow
 def test_non_utf8_paths_work_for_map_render_and_show(base, tmp_path):
     seq = tmp_path / os.fsdecode(b"seq-\xe9")
     shutil.copytree(base / "seq", seq)

@@ -54,6 +54,7 @@ def moved_poses(src: Path, dst: Path, dx: float) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_two_revise_runs_one_refuses_and_the_map_is_exact(capsys, base, tmp_path):
     ref, m = tmp_path / "ref", tmp_path / "m"
     shutil.copytree(base / "map", ref)
@@ -72,6 +73,7 @@ def test_two_revise_runs_one_refuses_and_the_map_is_exact(capsys, base, tmp_path
     assert map_files(m) == map_files(ref)
 
 
+@pytest.mark.slow
 def test_map_overwrite_while_map_runs_refuses(capsys, base, tmp_path):
     out = tmp_path / "out"
     first = popen("map", base / "seq", out, "--quiet", "--checkpoint-every", "1")
@@ -86,6 +88,7 @@ def test_map_overwrite_while_map_runs_refuses(capsys, base, tmp_path):
     assert map_files(out) == map_files(base / "map")
 
 
+@pytest.mark.slow
 def test_stale_lock_after_kill_is_cleared(capsys, base, tmp_path):
     out = tmp_path / "out"
     first = popen("map", base / "seq", out, "--quiet", "--checkpoint-every", "1")
