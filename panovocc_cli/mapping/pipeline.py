@@ -239,7 +239,7 @@ def _check_inputs(cfg: MapConfig, seq: Sequence) -> None:
     seq.check_files(("depth",) + (("rgb",) if spec else ()) + labels)
     if spec.startswith("precomputed:"):
         from ..classes import canonical_name
-        from ..semantics.precomputed import read_vocab_json
+        from ..io.precomputed import read_vocab_json
 
         folder = Path(spec[len("precomputed:"):])
         known = set(read_vocab_json(folder))
