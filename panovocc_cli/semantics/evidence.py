@@ -128,12 +128,18 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
     T = np.asarray(T_world_cam, np.float64)
     R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
     werp = w_erp(latitudes(h), weights.erp_power, weights.erp_floor).astype(np.float64)
-    keys = np.empty(h * w, np.int64)
-    if _pixel_keys(depth, rays, werp, float(weights.range_scale), R, t, float(voxel_size), int(KEY_RANGE), keys):
+    nch = min(N_CHUNKS, h)
+    lid = np.empty(h * w, np.int32)
+    ckeys = np.empty(h * w, np.int64)
+    nvox = np.zeros(nch, np.int64)
+    if _chunk_voxels(depth, rays, werp, float(weights.range_scale), R, t, float(voxel_size), int(KEY_RANGE),
+                     nch, lid, ckeys, nvox):
         raise PanovoccError(f"voxel index out of the lattice's range (|index| < {KEY_RANGE})")
-    uk, start, pix = _group_pixels(keys)
-    E, S, rgb_sum, normal_sum, count = _voxel_sums(depth, rays, logits, rgb, werp, float(weights.range_scale), R,
-                                                   0.1, start, pix)
+    E, S, rgb_sum, normal_sum, count, allkeys = _chunk_sums(depth, rays, logits, rgb, werp,
+                                                            float(weights.range_scale), R, 0.1, nch, lid, ckeys,
+                                                            nvox)
+    order = np.argsort(allkeys, kind="stable")  # same key: chunks stay in chunk order
+    uk, E, S, rgb_sum, normal_sum, count = _merge_chunks(allkeys, order, E, S, rgb_sum, normal_sum, count)
     if (count == 0).any():  # voxels whose every pixel had eta = 0 (float32 underflow at absurd ranges)
         keep = count > 0
         uk, E, S, rgb_sum, normal_sum, count = uk[keep], E[keep], S[keep], rgb_sum[keep], normal_sum[keep], count[keep]
@@ -143,235 +149,343 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
 # ---------------------------------------------------------------------------------------------
 # Compiled kernels of frame_semantic_delta
 
-_NO_KEY = np.int64(-1)  # pixel that adds nothing (packed keys are >= 0)
-
-
-@nb.njit(cache=True, inline="always")
-def _pairwise_sum8(a, n):
-    """float32 sum of ``a[:n]`` in numpy's pairwise order for n <= 128 (so the softmax matches numpy's)."""
-    if n < 8:
-        r = np.float32(0.0)
-        for j in range(n):
-            r += a[j]
-        return r
-    r0, r1, r2, r3, r4, r5, r6, r7 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7]
-    k = 8
-    while k < n - (n % 8):
-        r0 += a[k]
-        r1 += a[k + 1]
-        r2 += a[k + 2]
-        r3 += a[k + 3]
-        r4 += a[k + 4]
-        r5 += a[k + 5]
-        r6 += a[k + 6]
-        r7 += a[k + 7]
-        k += 8
-    r = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while k < n:
-        r += a[k]
-        k += 1
-    return r
-
-
-@nb.njit(cache=True, inline="always")
-def _neighbour_ok(depth, rays, v, u, r, max_jump):
-    """Point of pixel (v, u) and whether it is valid and within ``max_jump`` relative range of ``r``."""
-    d = depth[v, u]
-    q0, q1, q2 = rays[v, u, 0] * d, rays[v, u, 1] * d, rays[v, u, 2] * d
-    ok = np.isfinite(d) and d > 0
-    if ok:
-        rq = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
-        ok = abs(rq - r) <= max_jump * max(r, 1e-9)
-    return q0, q1, q2, ok
-
-
-@nb.njit(cache=True, parallel=True)
-def _pixel_keys(depth, rays, werp, range_scale, R, t, h, key_range, keys):
-    """Voxel key of every pixel with a measurement (rows in parallel), -1 elsewhere; True if an index
-    falls outside the lattice's key range.
-
-    A pixel is a measurement where its depth is finite and > 0 and ``w_erp * w_range > 0`` (then eta > 0,
-    the class confidence being at least 1/C); world point ``R p + t`` as ``p @ R.T + t``.
-    """
-    H, W = depth.shape
-    bad = np.zeros(H, np.bool_)
-    off = key_range
-    mask = 2 * key_range - 1
-    for v in nb.prange(H):
-        for u in range(W):
-            d = depth[v, u]
-            if not (np.isfinite(d) and d > 0 and werp[v] * (1.0 / (1.0 + (d / range_scale) ** 2)) > 0):
-                keys[v * W + u] = _NO_KEY
-                continue
-            p0, p1, p2 = rays[v, u, 0] * d, rays[v, u, 1] * d, rays[v, u, 2] * d
-            key = np.int64(0)
-            for i in range(3):
-                x = p0 * R[i, 0] + p1 * R[i, 1] + p2 * R[i, 2] + t[i]
-                idx = np.int64(np.floor(x / h))
-                if abs(idx) >= key_range:
-                    bad[v] = True
-                key = (key << 21) | ((idx + off) & mask)
-            keys[v * W + u] = key
-    return bad.any()
-
-
 @nb.njit(cache=True, inline="always")
 def _slot(key, bits):
     """Fibonacci hash of a voxel key onto ``bits`` bits (the product's high bits: all key bits mix in)."""
     return np.int64((np.uint64(key) * np.uint64(11400714819323198485)) >> np.uint64(64 - bits))
 
 
-@nb.njit(cache=True)
-def _group_pixels(keys):
-    """Group pixels by voxel: sorted unique keys (n,), CSR ``start`` (n + 1,) and ``pix`` (m,) int64, the
-    pixels of voxel i being ``pix[start[i]:start[i + 1]]`` in increasing (pixel) order."""
-    M = keys.shape[0]
-    bits = 14
-    cap = 1 << bits
-    table = np.full(cap, -1, np.int64)  # slot -> row (rows in order of first appearance)
-    rkey = np.empty(cap // 2, np.int64)
-    row = np.empty(M, np.int64)
-    n = 0
-    last_key = np.int64(-2)
-    last_row = -1
-    for p in range(M):
-        k = keys[p]
-        if k < 0:
-            row[p] = -1
-            continue
-        if k != last_key:
-            slot = _slot(k, bits)
-            while True:
-                r = table[slot]
-                if r < 0 or rkey[r] == k:
-                    break
-                slot = (slot + 1) & (cap - 1)
-            if r < 0:
-                if 2 * (n + 1) > cap:  # grow: double the table, rehash
-                    cap *= 2
-                    bits += 1
-                    table = np.full(cap, -1, np.int64)
-                    rkey = np.concatenate((rkey[:n], np.empty(cap // 2 - n, np.int64)))
-                    for r2 in range(n):
-                        s2 = _slot(rkey[r2], bits)
-                        while table[s2] >= 0:
-                            s2 = (s2 + 1) & (cap - 1)
-                        table[s2] = r2
-                    slot = _slot(k, bits)
-                    while table[slot] >= 0:
-                        slot = (slot + 1) & (cap - 1)
-                r = n
-                table[slot] = r
-                rkey[r] = k
-                n += 1
-            last_key = k
-            last_row = r
-        row[p] = last_row
-    order = np.argsort(rkey[:n])
-    rank = np.empty(n, np.int64)
-    for i in range(n):
-        rank[order[i]] = i
-    start = np.zeros(n + 1, np.int64)
-    for p in range(M):
-        if row[p] >= 0:
-            start[rank[row[p]] + 1] += 1
-    for i in range(n):
-        start[i + 1] += start[i]
-    fill = start[:n].copy()
-    pix = np.empty(start[n], np.int64)
-    for p in range(M):
-        if row[p] >= 0:
-            i = rank[row[p]]
-            pix[fill[i]] = p
-            fill[i] += 1
-    return rkey[:n][order], start, pix
+N_CHUNKS = 32  # fixed row chunks of the per-frame sums: the bytes never depend on the thread count
+
+_LOG2E = np.float32(1.4426950408889634)
+_LN2_HI = np.float32(0.693359375)
+_LN2_LO = np.float32(-2.12194440e-4)
+_EXP_MIN = np.float32(-87.0)  # exp(-87) ~ 1.6e-38: smaller inputs give that (numpy: a denormal or 0)
+_HALF = np.float32(0.5)
+_ONE = np.float32(1.0)
+_P0 = np.float32(1.9875691500e-4)  # Cephes expf polynomial on [-ln2/2, ln2/2], max error ~1 ulp
+_P1 = np.float32(1.3981999507e-3)
+_P2 = np.float32(8.3334519073e-3)
+_P3 = np.float32(4.1665795894e-2)
+_P4 = np.float32(1.6666665459e-1)
+_P5 = np.float32(5.0000001201e-1)
 
 
 @nb.njit(cache=True, parallel=True)
-def _voxel_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, start, pix):
-    """Per-voxel sums (voxels in parallel, each over its pixels in pixel order, in float64 as
-    ``np.bincount``): E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3) float64, count (n,) int64.
+def _chunk_voxels(depth, rays, werp, range_scale, R, t, h, key_range, nch, lid, ckeys, nvox):
+    """Pass 1 of the per-frame sums, over ``nch`` fixed row chunks in parallel: each chunk's distinct voxel
+    keys in order of first appearance (``ckeys[first pixel of the chunk + i]``, ``nvox[c]`` of them) and
+    every pixel's index into its chunk's list (``lid``, -1: no measurement). True if an index falls
+    outside the lattice's key range.
 
-    Per pixel, the same expressions in the same order as the numpy chain: ``softmax`` (float32, numpy's
-    pairwise sum), ``eta = float32(c w_erp w_range)``, the ``erp_normals`` normal (float64, cast to
-    float32) rotated to the world frame.
+    A pixel is a measurement where its depth is finite and > 0 and ``w_erp * w_range > 0`` (then eta > 0,
+    the class confidence being at least 1/C); world point ``R p + t`` as ``p @ R.T + t``. Neighbouring
+    pixels mostly share a voxel, so the last key is cached before the open-addressing table is probed.
+    """
+    H, W = depth.shape
+    rows = (H + nch - 1) // nch
+    bad = np.zeros(nch, np.bool_)
+    off = key_range
+    mask = 2 * key_range - 1
+    for c in nb.prange(nch):
+        v0 = min(H, c * rows)
+        v1 = min(H, v0 + rows)
+        base = v0 * W
+        bits = 12
+        cap = 1 << bits
+        table = np.full(cap, -1, np.int64)  # slot -> index into the chunk's key list
+        n = 0
+        last_key = np.int64(-2)
+        last = -1
+        for v in range(v0, v1):
+            for u in range(W):
+                d = depth[v, u]
+                if not (np.isfinite(d) and d > 0 and werp[v] * (1.0 / (1.0 + (d / range_scale) ** 2)) > 0):
+                    lid[v * W + u] = -1
+                    continue
+                p0, p1, p2 = rays[v, u, 0] * d, rays[v, u, 1] * d, rays[v, u, 2] * d
+                key = np.int64(0)
+                for i in range(3):
+                    x = p0 * R[i, 0] + p1 * R[i, 1] + p2 * R[i, 2] + t[i]
+                    idx = np.int64(np.floor(x / h))
+                    if abs(idx) >= key_range:
+                        bad[c] = True
+                    key = (key << 21) | ((idx + off) & mask)
+                if key != last_key:
+                    slot = _slot(key, bits)
+                    while True:
+                        r = table[slot]
+                        if r < 0 or ckeys[base + r] == key:
+                            break
+                        slot = (slot + 1) & (cap - 1)
+                    if r < 0:
+                        if 2 * (n + 1) > cap:  # grow: double the table, rehash
+                            cap *= 2
+                            bits += 1
+                            table = np.full(cap, -1, np.int64)
+                            for r2 in range(n):
+                                s2 = _slot(ckeys[base + r2], bits)
+                                while table[s2] >= 0:
+                                    s2 = (s2 + 1) & (cap - 1)
+                                table[s2] = r2
+                            slot = _slot(key, bits)
+                            while table[slot] >= 0:
+                                slot = (slot + 1) & (cap - 1)
+                        r = n
+                        table[slot] = r
+                        ckeys[base + r] = key
+                        n += 1
+                    last_key = key
+                    last = r
+                lid[v * W + u] = last
+        nvox[c] = n
+    return bad.any()
+
+
+@nb.njit(cache=True, inline="always")
+def _softmax_row(row, m, e, acc, s, pw, pwf, cmax):
+    """Softmax of one image row ``row`` (W, C) float32 into ``e`` (C, W), its maximum into ``cmax`` (W,):
+    after a transposing pass, loops along the row with no calls, so they vectorise. ``exp`` is the Cephes float32 polynomial
+    (within ~1 ulp of the C library's), the sum over classes numpy's pairwise order."""
+    W, C = row.shape
+    flat = row.ravel()
+    for k in range(C):  # transpose, class after class (strided loads of a whole row vectorise)
+        ek = e[k]
+        for u in range(W):
+            ek[u] = flat[u * C + k]
+    e0 = e[0]
+    for u in range(W):
+        m[u] = e0[u]
+    for k in range(1, C):
+        ek = e[k]
+        for u in range(W):
+            x = ek[u]
+            m[u] = x if x > m[u] else m[u]
+    for k in range(C):
+        ek = e[k]
+        for u in range(W):
+            x = ek[u] - m[u]
+            x = x if x > _EXP_MIN else _EXP_MIN
+            fn = np.floor(x * _LOG2E + _HALF)
+            r = x - fn * _LN2_HI - fn * _LN2_LO
+            p = ((((_P0 * r + _P1) * r + _P2) * r + _P3) * r + _P4) * r + _P5
+            ek[u] = p * r * r + r + _ONE
+            pw[u] = (np.int32(fn) + 127) << 23
+        for u in range(W):
+            ek[u] = ek[u] * pwf[u]
+    # numpy's pairwise float32 sum (n < 8: in order; else 8 accumulators, combined as a tree, then the tail)
+    if C < 8:
+        for u in range(W):
+            s[u] = e[0, u]
+        for k in range(1, C):
+            ek = e[k]
+            for u in range(W):
+                s[u] += ek[u]
+    else:
+        for j in range(8):
+            acc[j, :] = e[j, :]
+        k = 8
+        while k < C - (C % 8):
+            for j in range(8):
+                aj = acc[j]
+                ek = e[k + j]
+                for u in range(W):
+                    aj[u] += ek[u]
+            k += 8
+        a0, a1, a2, a3, a4, a5, a6, a7 = acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], acc[7]
+        for u in range(W):
+            s[u] = ((a0[u] + a1[u]) + (a2[u] + a3[u])) + ((a4[u] + a5[u]) + (a6[u] + a7[u]))
+        while k < C:
+            ek = e[k]
+            for u in range(W):
+                s[u] += ek[u]
+            k += 1
+    for u in range(W):
+        cmax[u] = 0.0
+        s[u] = _ONE / s[u]  # times the reciprocal: within 1 ulp of the division
+    for k in range(C):
+        ek = e[k]
+        for u in range(W):
+            q = ek[u] * s[u]
+            ek[u] = q
+            cmax[u] = q if q > cmax[u] else cmax[u]
+
+
+@nb.njit(cache=True, inline="always")
+def _row_points(depth, rays, v, P, rr, ok):
+    """Camera-frame points ``P`` (3, W + 2), ranges ``rr`` and validity ``ok`` (finite depth > 0) of image
+    row ``v``; pixel u at column u + 1, columns 0 and W + 1 repeat the last and first (longitude wraps)."""
+    W = depth.shape[1]
+    for u in range(W):
+        d = depth[v, u]
+        q0, q1, q2 = rays[v, u, 0] * d, rays[v, u, 1] * d, rays[v, u, 2] * d
+        P[0, u + 1] = q0
+        P[1, u + 1] = q1
+        P[2, u + 1] = q2
+        rr[u + 1] = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+        ok[u + 1] = np.isfinite(d) and d > 0
+    for k in range(3):
+        P[k, 0] = P[k, W]
+        P[k, W + 1] = P[k, 1]
+    rr[0], rr[W + 1] = rr[W], rr[1]
+    ok[0], ok[W + 1] = ok[W], ok[1]
+
+
+@nb.njit(cache=True, inline="always")
+def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
+    """World-frame unit normals ``nw`` (3, W) of row ``v`` as :func:`erp_normals` (central differences,
+    one-sided at invalid neighbours and depth jumps over ``max_jump`` relative range; 0 where undefined;
+    facing the camera; cast to float32 before the rotation ``R``), from the rolling row buffers of
+    :func:`_row_points` (slot ``row % 3``); branch-free along the row."""
+    W = nw.shape[1]
+    c, dn, up = v % 3, (v + 1) % 3, (v + 2) % 3  # (v + 2) % 3 = (v - 1) % 3
+    has_dn = v + 1 < H
+    has_up = v >= 1
+    Pc, Pd, Pu = pts[c], pts[dn], pts[up]
+    rc_, rd_, ru_ = rng[c], rng[dn], rng[up]
+    oc_, od_, ou_ = okr[c], okr[dn], okr[up]
+    for u in range(W):
+        j = u + 1
+        p0, p1, p2 = Pc[0, j], Pc[1, j], Pc[2, j]
+        r = rc_[j]
+        thr = max_jump * max(r, 1e-9)
+        okf = oc_[j + 1] and abs(rc_[j + 1] - r) <= thr
+        okb = oc_[j - 1] and abs(rc_[j - 1] - r) <= thr
+        a0, a1, a2 = Pc[0, j + 1], Pc[1, j + 1], Pc[2, j + 1]
+        b0, b1, b2 = Pc[0, j - 1], Pc[1, j - 1], Pc[2, j - 1]
+        if okf and okb:
+            du0, du1, du2 = a0 - b0, a1 - b1, a2 - b2
+        elif okf:
+            du0, du1, du2 = a0 - p0, a1 - p1, a2 - p2
+        elif okb:
+            du0, du1, du2 = p0 - b0, p1 - b1, p2 - b2
+        else:
+            du0, du1, du2 = 0.0, 0.0, 0.0
+        oku = okf or okb
+        okf = has_dn and od_[j] and abs(rd_[j] - r) <= thr
+        okb = has_up and ou_[j] and abs(ru_[j] - r) <= thr
+        a0, a1, a2 = Pd[0, j], Pd[1, j], Pd[2, j]
+        b0, b1, b2 = Pu[0, j], Pu[1, j], Pu[2, j]
+        if okf and okb:
+            dv0, dv1, dv2 = a0 - b0, a1 - b1, a2 - b2
+        elif okf:
+            dv0, dv1, dv2 = a0 - p0, a1 - p1, a2 - p2
+        elif okb:
+            dv0, dv1, dv2 = p0 - b0, p1 - b1, p2 - b2
+        else:
+            dv0, dv1, dv2 = 0.0, 0.0, 0.0
+        okv = okf or okb
+        n0 = du1 * dv2 - du2 * dv1
+        n1 = du2 * dv0 - du0 * dv2
+        n2 = du0 * dv1 - du1 * dv0
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if oku and okv and nn > 1e-12:
+            n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
+        else:
+            n0, n1, n2 = 0.0, 0.0, 0.0
+        if n0 * p0 + n1 * p1 + n2 * p2 > 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        f0, f1, f2 = np.float64(np.float32(n0)), np.float64(np.float32(n1)), np.float64(np.float32(n2))
+        for k in range(3):
+            nw[k, u] = f0 * R[k, 0] + f1 * R[k, 1] + f2 * R[k, 2]
+
+
+@nb.njit(cache=True, parallel=True)
+def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, lid, ckeys, nvox):
+    """Pass 2, over the same row chunks in parallel: each chunk's per-voxel sums over its pixels in pixel
+    order (float64): E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3) float64, count (n,) int64 and the
+    keys (n,), chunk after chunk (``n = nvox.sum()``; a voxel seen by several chunks has a row in each).
+
+    Per pixel, the same expressions as the numpy chain: ``softmax`` (float32), ``eta = float32(c w_erp
+    w_range)``, the ``erp_normals`` normal (float64, cast to float32) rotated to the world frame.
     """
     H, W = depth.shape
     C = logits.shape[2]
-    n = start.shape[0] - 1
-    E = np.zeros((n, C), np.float64)
-    S = np.zeros(n, np.float64)
-    col = np.zeros((n, 3), np.float64)
-    nrm = np.zeros((n, 3), np.float64)
-    cnt = np.zeros(n, np.int64)
-    for i in nb.prange(n):
-        e = np.empty(C, np.float32)
-        for q in range(start[i], start[i + 1]):
-            p = pix[q]
-            v = p // W
-            u = p - v * W
-            d = depth[v, u]
-            m = logits[v, u, 0]
-            for k in range(1, C):
-                m = max(m, logits[v, u, k])
-            for k in range(C):
-                e[k] = np.exp(logits[v, u, k] - m)
-            s = _pairwise_sum8(e, C)
-            cmax = np.float32(0.0)
-            for k in range(C):
-                e[k] = e[k] / s
-                cmax = max(cmax, e[k])
-            wr = 1.0 / (1.0 + (d / range_scale) ** 2)
-            et = np.float64(np.float32(np.float64(cmax) * werp[v] * wr))
-            if not et > 0:
-                continue
-            for k in range(C):
-                E[i, k] += et * np.float64(e[k])
-            S[i] += et
-            for k in range(3):
-                col[i, k] += np.float64(rgb[v, u, k])
-            cnt[i] += 1
-            # normal: central differences, one-sided at invalid neighbours and depth jumps (erp_normals)
-            p0, p1, p2 = rays[v, u, 0] * d, rays[v, u, 1] * d, rays[v, u, 2] * d
-            r = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-            a0, a1, a2, okf = _neighbour_ok(depth, rays, v, (u + 1) % W, r, max_jump)
-            b0, b1, b2, okb = _neighbour_ok(depth, rays, v, (u - 1) % W, r, max_jump)
-            if okf and okb:
-                du0, du1, du2 = a0 - b0, a1 - b1, a2 - b2
-            elif okf:
-                du0, du1, du2 = a0 - p0, a1 - p1, a2 - p2
-            elif okb:
-                du0, du1, du2 = p0 - b0, p1 - b1, p2 - b2
-            else:
-                du0, du1, du2 = 0.0, 0.0, 0.0
-            oku = okf or okb
-            okf = False
-            okb = False
-            a0 = a1 = a2 = b0 = b1 = b2 = 0.0
+    rows = (H + nch - 1) // nch
+    off = np.zeros(nch + 1, np.int64)
+    for c in range(nch):
+        off[c + 1] = off[c] + nvox[c]
+    tot = off[nch]
+    E = np.zeros((tot, C), np.float64)
+    S = np.zeros(tot, np.float64)
+    col = np.zeros((tot, 3), np.float64)
+    nrm = np.zeros((tot, 3), np.float64)
+    cnt = np.zeros(tot, np.int64)
+    keys = np.empty(tot, np.int64)
+    for c in nb.prange(nch):
+        v0 = min(H, c * rows)
+        v1 = min(H, v0 + rows)
+        o = off[c]
+        for i in range(nvox[c]):
+            keys[o + i] = ckeys[v0 * W + i]
+        m = np.empty(W, np.float32)
+        e = np.empty((C, W), np.float32)
+        acc = np.empty((8, W), np.float32)
+        s = np.empty(W, np.float32)
+        pw = np.empty(W, np.int32)
+        pwf = pw.view(np.float32)
+        cmax = np.empty(W, np.float32)
+        pts = np.zeros((3, 3, W + 2), np.float64)  # rows v - 1, v, v + 1 (slot row % 3): points, padded
+        rng = np.zeros((3, W + 2), np.float64)  # ... their ranges
+        okr = np.zeros((3, W + 2), np.bool_)  # ... finite depth > 0
+        nw = np.empty((3, W), np.float64)
+        if v0 >= 1:
+            _row_points(depth, rays, v0 - 1, pts[(v0 - 1) % 3], rng[(v0 - 1) % 3], okr[(v0 - 1) % 3])
+        if v0 < H:
+            _row_points(depth, rays, v0, pts[v0 % 3], rng[v0 % 3], okr[v0 % 3])
+        for v in range(v0, v1):
             if v + 1 < H:
-                a0, a1, a2, okf = _neighbour_ok(depth, rays, v + 1, u, r, max_jump)
-            if v >= 1:
-                b0, b1, b2, okb = _neighbour_ok(depth, rays, v - 1, u, r, max_jump)
-            if okf and okb:
-                dv0, dv1, dv2 = a0 - b0, a1 - b1, a2 - b2
-            elif okf:
-                dv0, dv1, dv2 = a0 - p0, a1 - p1, a2 - p2
-            elif okb:
-                dv0, dv1, dv2 = p0 - b0, p1 - b1, p2 - b2
-            else:
-                dv0, dv1, dv2 = 0.0, 0.0, 0.0
-            okv = okf or okb
-            n0 = du1 * dv2 - du2 * dv1
-            n1 = du2 * dv0 - du0 * dv2
-            n2 = du0 * dv1 - du1 * dv0
-            nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-            if oku and okv and nn > 1e-12:
-                n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
-            else:
-                n0, n1, n2 = 0.0, 0.0, 0.0
-            if n0 * p0 + n1 * p1 + n2 * p2 > 0:
-                n0, n1, n2 = -n0, -n1, -n2
-            f0, f1, f2 = np.float64(np.float32(n0)), np.float64(np.float32(n1)), np.float64(np.float32(n2))
-            for k in range(3):
-                nrm[i, k] += f0 * R[k, 0] + f1 * R[k, 1] + f2 * R[k, 2]
-    return E, S, col, nrm, cnt
+                _row_points(depth, rays, v + 1, pts[(v + 1) % 3], rng[(v + 1) % 3], okr[(v + 1) % 3])
+            _row_normals(pts, rng, okr, v, H, max_jump, R, nw)
+            _softmax_row(logits[v], m, e, acc, s, pw, pwf, cmax)
+            for u in range(W):
+                q = lid[v * W + u]
+                if q < 0:
+                    continue
+                d = depth[v, u]
+                wr = 1.0 / (1.0 + (d / range_scale) ** 2)
+                et = np.float64(np.float32(np.float64(cmax[u]) * werp[v] * wr))
+                if not et > 0:
+                    continue
+                i = o + q
+                for k in range(C):
+                    E[i, k] += et * np.float64(e[k, u])
+                S[i] += et
+                for k in range(3):
+                    col[i, k] += np.float64(rgb[v, u, k])
+                cnt[i] += 1
+                for k in range(3):
+                    nrm[i, k] += nw[k, u]
+    return E, S, col, nrm, cnt, keys
+
+
+@nb.njit(cache=True)
+def _merge_chunks(keys, order, E, S, col, nrm, cnt):
+    """Pass 3: the chunks' rows of the same voxel summed in chunk order (``order``: a stable argsort of
+    ``keys``); returns sorted unique keys and their E, S, rgb_sum, normal_sum, count."""
+    m = keys.shape[0]
+    C = E.shape[1]
+    n = 0
+    for j in range(m):
+        if j == 0 or keys[order[j]] != keys[order[j - 1]]:
+            n += 1
+    uk = np.empty(n, np.int64)
+    E2 = np.zeros((n, C), np.float64)
+    S2 = np.zeros(n, np.float64)
+    col2 = np.zeros((n, 3), np.float64)
+    nrm2 = np.zeros((n, 3), np.float64)
+    cnt2 = np.zeros(n, np.int64)
+    g = -1
+    for j in range(m):
+        i = order[j]
+        if j == 0 or keys[i] != keys[order[j - 1]]:
+            g += 1
+            uk[g] = keys[i]
+        for k in range(C):
+            E2[g, k] += E[i, k]
+        S2[g] += S[i]
+        for k in range(3):
+            col2[g, k] += col[i, k]
+            nrm2[g, k] += nrm[i, k]
+        cnt2[g] += cnt[i]
+    return uk, E2, S2, col2, nrm2, cnt2
