@@ -335,9 +335,13 @@ def _add_blob(logits, labels, partner, lat, lat_max, v0, u0, ra, rb_u, push):
     wrapping) toward its class's confusion partner by ``push * lat[v] / lat_max * sqrt(1 - r^2)``."""
     H, W = labels.shape
     v_lo, v_hi = max(0, int(v0 - ra)), min(H, int(v0 + ra) + 1)
+    whole = 2.0 * rb_u + 4.0 >= W  # else only the columns within rb_u of u0 (wrapped), each once
+    u_lo = 0 if whole else int(np.floor(u0 - rb_u)) - 1
+    n_u = W if whole else int(np.ceil(u0 + rb_u)) + 2 - u_lo
     for v in range(v_lo, v_hi):
         dv = (v - v0) / ra
-        for u in range(W):
+        for iu in range(n_u):
+            u = (u_lo + iu) % W
             du = (u - u0 + W / 2.0) % W - W / 2.0
             r2 = dv * dv + (du / rb_u) ** 2
             if r2 < 1.0:
@@ -378,15 +382,20 @@ def _erode_boundaries(logits, labels, top, field, radius, push):
     for v in nb.prange(H):
         left = np.zeros(W, np.int64)  # distance to the first different label on the left (0: none)
         right = np.zeros(W, np.int64)
+        row = labels[v]
         j = -1  # start of the current run, in the doubled row
-        for i in range(2 * W):
-            if i > 0 and labels[v, i % W] != labels[v, (i - 1) % W]:
+        for i in range(1, 2 * W):
+            a = i - W if i >= W else i
+            b = a - 1 if a > 0 else W - 1
+            if row[a] != row[b]:
                 j = i
             if i >= W and j >= 0:
                 left[i - W] = i - j + 1
         j = -1
-        for i in range(2 * W - 1, -1, -1):
-            if i < 2 * W - 1 and labels[v, i % W] != labels[v, (i + 1) % W]:
+        for i in range(2 * W - 2, -1, -1):
+            a = i - W if i >= W else i
+            b = a + 1 if a < W - 1 else 0
+            if row[a] != row[b]:
                 j = i
             if i < W and j >= 0:
                 right[i] = j - i + 1
