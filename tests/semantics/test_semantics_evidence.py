@@ -172,14 +172,16 @@ def test_subtracting_a_delta_undoes_it():
     np.testing.assert_allclose(np.delete(S, pos1), 0.0, atol=1e-9)
 
 
-@pytest.mark.parametrize("width,yaw,voxel", [(256, 0.3, 0.2), (512, 1.1, 0.08)])
+@pytest.mark.parametrize("width,yaw,voxel", [(256, 0.3, 0.2), (512, 1.1, 0.08), (40, 0.5, 0.3)])
 def test_compiled_delta_matches_numpy_reference(width, yaw, voxel):
     """The compiled per-frame delta = the plain-numpy chain (tests/semantics_reference.py).
 
-    Keys, counts and colour sums are identical; the float sums agree to ~1e-6 relative. The only
-    difference is the float32 exp of the softmax (the C library's vs numpy's SIMD one, 1 ulp apart on
-    ~40 % of inputs; summation orders are the same), so after quantisation (2^-16) E and S agree to
-    within one unit, and normal sums (no exp) are identical.
+    Keys, counts and colour sums are identical; the float sums agree to ~1e-6 relative. The differences:
+    the float32 exp of the softmax (a Cephes polynomial vs numpy's SIMD one, ~1 ulp apart), the
+    normalisation by a reciprocal (1 ulp), and the summation order of a voxel whose pixels fall in
+    several of the fixed row chunks (chunk partial sums added in chunk order). After quantisation
+    (2^-16) E, S and the normal sums agree to within one unit (the normal sums are identical on these
+    frames). Width 40 (20 rows) has fewer rows than chunks.
     """
     from panovocc_cli.mapping.semantic import quantize_semantic_delta
 
@@ -199,3 +201,43 @@ def test_compiled_delta_matches_numpy_reference(width, yaw, voxel):
     for name in ("E", "S", "normal_sum"):
         assert np.abs(q0.channels[name] - q1.channels[name]).max() <= 1
     assert np.array_equal(q0.channels["normal_sum"], q1.channels["normal_sum"])
+
+
+_THREADS_SCRIPT = """
+import hashlib, sys
+import numpy as np
+sys.path.insert(0, {tests!r})
+from semantics_helpers import CLASS_NAMES, pose, render_room
+from panovocc_cli.classes import DEFAULT_VOCAB
+from panovocc_cli.semantics.evidence import frame_semantic_delta
+from panovocc_cli.semantics.simulated import SimulatedConfig, simulate_logits
+T = pose(yaw=0.7)
+lab, depth, rgb = render_room(512, T)
+depth = depth.astype(np.float32)
+depth[::11, ::3] = 0.0
+logits = simulate_logits(lab, CLASS_NAMES, list(DEFAULT_VOCAB) + ["pillow"], 2, SimulatedConfig(seed=4))
+k, c = frame_semantic_delta(depth, rgb, logits, T, 0.08)
+h = hashlib.sha256(logits.tobytes())
+h.update(k.tobytes())
+for name in sorted(c):
+    h.update(np.ascontiguousarray(c[name]).tobytes())
+print(h.hexdigest(), len(k))
+"""
+
+
+def test_delta_and_simulator_bytes_do_not_depend_on_the_thread_count():
+    """The compiled kernels split the image into a fixed number of row chunks and merge them in chunk
+    order, so 1 and 2 numba threads give the same bytes (logits, keys and every float sum)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = _THREADS_SCRIPT.format(tests=str(Path(__file__).resolve().parents[1]))
+    out = []
+    for n in (1, 2):
+        env = dict(os.environ, NUMBA_NUM_THREADS=str(n))
+        r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr[-2000:]
+        out.append(r.stdout.split())
+    assert out[0] == out[1] and int(out[0][1]) > 100
