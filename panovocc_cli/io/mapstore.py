@@ -61,13 +61,23 @@ def write_delta(path: str | Path, keys: np.ndarray, channels: Mapping[str, np.nd
     ----------
     keys : (n,) int64, sorted unique voxel keys (``geometry.lattice.pack_keys``); stored as differences
         (first key, then gaps), which compress to almost nothing
-    channels : dict name -> (n, width) int64; each stored in the smallest signed integer type that holds it
+    channels : dict name -> (n, width) int64; each stored in the smallest signed integer type that holds it.
+        A channel that is zero on most rows (the semantic channels of a merged delta, non-zero only where
+        pixels fell, against the geometry's free-space rows) is stored as its non-zero rows ``ch_NAME``
+        and their row indices as differences ``rows_NAME``: zlib no longer spends its time on zeros.
     T_world_cam : (4, 4) float64, the pose the delta was computed under
     """
+    n = len(keys)
     arrays = {"keys_diff": np.diff(np.asarray(keys, np.int64), prepend=np.int64(0)),
               "T_world_cam": np.asarray(T_world_cam, np.float64)}
     for name, arr in channels.items():
-        arrays[f"ch_{name}"] = _compact(np.asarray(arr))
+        arr = np.asarray(arr)
+        rows = np.flatnonzero(arr.reshape(n, -1).any(axis=1)) if n else np.zeros(0, np.int64)
+        if 2 * len(rows) < n:
+            arrays[f"ch_{name}"] = _compact(arr.reshape(n, -1)[rows])
+            arrays[f"rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
+        else:
+            arrays[f"ch_{name}"] = _compact(arr)
     write_npz(path, arrays, compresslevel=DELTA_COMPRESSLEVEL)
 
 
@@ -79,7 +89,18 @@ def read_delta(path: str | Path) -> tuple[np.ndarray, dict, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = np.cumsum(z["keys_diff"].astype(np.int64))
-            ch = {k[3:]: z[k].astype(np.int64).reshape(len(keys), -1) for k in z.files if k.startswith("ch_")}
+            ch = {}
+            for k in z.files:
+                if not k.startswith("ch_"):
+                    continue
+                vals = z[k].astype(np.int64)
+                if f"rows_{k[3:]}" in z.files:  # sparse rows (write_delta)
+                    rows = np.cumsum(z[f"rows_{k[3:]}"].astype(np.int64))
+                    full = np.zeros((len(keys), vals.shape[1] if vals.ndim == 2 else 1), np.int64)
+                    full[rows] = vals.reshape(len(rows), full.shape[1])
+                    ch[k[3:]] = full
+                else:
+                    ch[k[3:]] = vals if vals.ndim == 2 else vals.reshape(len(keys), -1)
             T = np.asarray(z["T_world_cam"], np.float64)
     except Exception as e:  # noqa: BLE001 - any unreadable file is the same failure
         raise PanovoccError(f"cannot read delta ({type(e).__name__}: {e})", path) from None

@@ -119,3 +119,28 @@ def test_atomic_outputs_get_normal_permissions(tmp_path):
         os.umask(old)
     assert stat.S_IMODE((tmp_path / "a.txt").stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / "d").stat().st_mode) == 0o755
+
+
+def test_delta_file_sparse_channel_rows_round_trip(tmp_path):
+    """A channel zero on most rows is stored as its non-zero rows (plus their indices) and read back
+    whole; dense, all-zero and empty channels round-trip too, and equal deltas give equal bytes."""
+    import numpy as np
+
+    from panovocc_cli.io.mapstore import read_delta, write_delta
+
+    keys = np.arange(0, 3000, 3, dtype=np.int64)
+    n = len(keys)
+    sparse = np.zeros((n, 4), np.int64)
+    sparse[[0, 5, n - 1]] = [[1, -2, 3, 70000], [0, 9, 0, 0], [-(2 ** 40), 0, 0, 1]]
+    ch = {"sparse": sparse, "dense": np.arange(2 * n).reshape(n, 2), "zero": np.zeros((n, 1), np.int64)}
+    write_delta(tmp_path / "a.npz", keys, ch, np.eye(4))
+    with np.load(tmp_path / "a.npz") as z:
+        assert z["ch_sparse"].shape == (3, 4) and "rows_dense" not in z.files
+    k2, ch2, T = read_delta(tmp_path / "a.npz")
+    assert np.array_equal(k2, keys) and np.array_equal(T, np.eye(4))
+    for name, arr in ch.items():
+        assert ch2[name].dtype == np.int64 and np.array_equal(ch2[name], arr)
+    write_delta(tmp_path / "b.npz", keys, ch, np.eye(4))
+    assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
+    write_delta(tmp_path / "e.npz", keys[:0], {"sparse": sparse[:0]}, np.eye(4))
+    assert read_delta(tmp_path / "e.npz")[1]["sparse"].shape == (0, 4)
