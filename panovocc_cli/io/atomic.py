@@ -165,6 +165,7 @@ OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
     "map": ("config.json",),
     "eval": ("scores.json", "scores.csv", "counts.csv"),
     "coverage": ("coverage.csv",),
+    "views": ("views.json",),
     "demo": ("scene/habitat/info_semantic.json", "seq/meta.json", "gt.npz", "map/config.json"),
 }
 
