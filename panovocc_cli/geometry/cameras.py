@@ -249,6 +249,7 @@ class ViewRig:
         cam = PinholeCamera.from_fov(size, size, math.pi / 2)
         dirs = (("front", 0, 0), ("right", 90, 0), ("back", 180, 0), ("left", 270, 0), ("up", 0, 90),
                 ("down", 0, -90))
-        return cls(tuple(RigView(n, cam, math.radians(a), math.radians(p), view_rotation(math.radians(a),
-                                                                                       math.radians(p)))
+        # axis-aligned faces: entries exactly 0 or +-1 (sin(pi) would leave 1.2e-16)
+        return cls(tuple(RigView(n, cam, math.radians(a), math.radians(p),
+                                 np.round(view_rotation(math.radians(a), math.radians(p))) + 0.0)
                          for n, a, p in dirs))

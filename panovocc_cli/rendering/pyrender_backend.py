@@ -14,19 +14,14 @@ import os
 import numpy as np
 
 from ..datasets.scene import Scene
+from ..geometry.cameras import ViewRig
 from ..geometry.erp import check_erp_size, ray_directions
 from ..geometry.poses import check_rigid
 from .raycast import Frame
 
-# Cube faces: columns (x_f, y_f, z_f) of each face camera (OpenCV axes) in the ERP camera frame.
-_FACES = np.array([
-    [[1, 0, 0], [0, 1, 0], [0, 0, 1]],  # front +z
-    [[0, 0, 1], [0, 1, 0], [-1, 0, 0]],  # right +x  (x_f = -z, y_f = y, z_f = x)
-    [[-1, 0, 0], [0, 1, 0], [0, 0, -1]],  # back -z
-    [[0, 0, -1], [0, 1, 0], [1, 0, 0]],  # left -x  (x_f = z, y_f = y, z_f = -x)
-    [[1, 0, 0], [0, 0, -1], [0, 1, 0]],  # up -y    (x_f = x, y_f = z, z_f = -y)
-    [[1, 0, 0], [0, 0, 1], [0, -1, 0]],  # down +y  (x_f = x, y_f = -z, z_f = y)
-], dtype=np.float64)
+# Cube faces: columns (x_f, y_f, z_f) of each face camera (OpenCV axes) in the ERP camera frame, from the
+# camera layer's cube rig: front +z, right +x, back -z, left -x, up -y, down +y (entries exactly 0 / +-1).
+_FACES = np.stack([view.R_cam_view for view in ViewRig.cube(1)])
 _GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 

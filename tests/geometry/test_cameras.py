@@ -137,3 +137,17 @@ def test_erp_camera_project_inverts_rays():
     np.testing.assert_allclose(u, uu, atol=1e-9)
     np.testing.assert_allclose(v, vv, atol=1e-9)
     np.testing.assert_allclose(r, 2.0)
+
+
+def test_cube_faces_are_the_pyrender_backends_exact_axes():
+    """The pyrender backend takes its faces from ViewRig.cube: the same rotations it had written out."""
+    faces = np.stack([v.R_cam_view for v in ViewRig.cube(4)])
+    written = np.array([
+        [[1, 0, 0], [0, 1, 0], [0, 0, 1]],  # front +z
+        [[0, 0, 1], [0, 1, 0], [-1, 0, 0]],  # right +x
+        [[-1, 0, 0], [0, 1, 0], [0, 0, -1]],  # back -z
+        [[0, 0, -1], [0, 1, 0], [1, 0, 0]],  # left -x
+        [[1, 0, 0], [0, 0, -1], [0, 1, 0]],  # up -y
+        [[1, 0, 0], [0, 0, 1], [0, -1, 0]],  # down +y
+    ], dtype=np.float64)
+    assert faces.tobytes() == written.tobytes()
