@@ -186,3 +186,43 @@ def test_views_cli_end_to_end(tmp_path, capsys):
     assert rc == 2 and (tmp_path / "other" / "keep.txt").read_text() == "x"
     rc, cap = cli("views", tmp_path / "seq", tmp_path / "bad", "--fov-deg", 180)
     assert rc == 2 and "--fov-deg" in cap.err and not (tmp_path / "bad").exists()
+
+
+def test_views_bad_inputs_write_nothing(tmp_path, capsys):
+    from panovocc_cli.cli import main
+
+    def cli(*argv):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as e:
+            main([str(a) for a in argv])
+        return int(e.value.code or 0), capsys.readouterr().err
+
+    seq = tmp_path / "seq"
+    write_box_sequence(seq, frames=2, W=64)
+    out = tmp_path / "out"
+    rc, err = cli("views", tmp_path / "nope", out)
+    assert rc == 2 and "nope" in err and err.count("\n") == 1
+    rc, err = cli("views", seq, out, "--size", 4)
+    assert rc == 2 and "--size" in err
+    rc, err = cli("views", seq, out, "--pitch-deg", -10)
+    assert rc == 2 and "--pitch-deg" in err
+    (seq / "depth" / "000001.png").unlink()
+    rc, err = cli("views", seq, out)
+    assert rc == 2 and "000001" in err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    # a pinhole sequence (a view of a previous run) is not a panorama
+    seq2 = tmp_path / "seq2"
+    write_box_sequence(seq2, frames=1, W=64)
+    assert cli("views", seq2, out, "--size", 8)[0] == 0
+    rc, err = cli("views", out / "view_00_az000_up", tmp_path / "out2")
+    assert rc == 2 and "erp" in err and not (tmp_path / "out2").exists()
+
+
+def test_views_help_names_units():
+    from typer.testing import CliRunner
+
+    from panovocc_cli.cli import app
+
+    r = CliRunner().invoke(app, ["views", "--help"], env={"COLUMNS": "200"})
+    assert r.exit_code == 0
+    assert "degrees" in r.output and "pixels" in r.output and "--overwrite" in r.output
