@@ -32,6 +32,9 @@ class ViewSampler:
         pixel (i, j) is (i, j); ``u`` in [-0.5, W - 0.5))
     col, row : (V, h, w) int64, the ERP pixel containing that point (nearest neighbour; column wrapped)
     z_per_r : (V, h, w) float64, z-depth per metre of radial depth along each view pixel's ray
+
+    Memory: 40 bytes a view pixel (12 views of 1024 x 1024: 0.5 GB; of 4096 x 4096, the largest
+    ``--size``: 8 GB).
     """
 
     def __init__(self, rig: ViewRig, width: int):
@@ -114,8 +117,8 @@ class ViewsConfig:
                                         "view_NN_azAAA_{up,mid,down}/."})
     fov_deg: float = field(default=90.0, metadata={"help": "Horizontal = vertical field of view of every view, "
                                                            "degrees, in [10, 170].", "min": 10.0, "max": 170.0})
-    size: int | None = field(default=None, metadata={"help": "View width = height in pixels, 8 to 8192 "
-                                                             "(default: ERP width / 4).", "min": 8, "max": 8192})
+    size: int | None = field(default=None, metadata={"help": "View width = height in pixels, 8 to 4096 "
+                                                             "(default: ERP width / 4).", "min": 8, "max": 4096})
     pitch_deg: float = field(default=TWELVE_PITCH_DEG, metadata={
         "help": "Pitch of the upper (+) and lower (-) rows, degrees, in [0, 90].", "min": 0.0, "max": 90.0})
     progress: bool = field(default=True, metadata={"help": "Show a progress bar on stderr."})
@@ -129,7 +132,7 @@ class ViewsConfig:
             if value is None:
                 continue
             meta = self.__dataclass_fields__[name].metadata
-            if isinstance(value, float) and not math.isfinite(value) or not meta["min"] <= value <= meta["max"]:
+            if not (math.isfinite(value) and meta["min"] <= value <= meta["max"]):
                 raise PanovoccError(f"--{name.replace('_', '-')} is {value}; expected in "
                                     f"[{meta['min']}, {meta['max']}]")
 
