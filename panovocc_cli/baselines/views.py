@@ -11,11 +11,12 @@ from __future__ import annotations
 import json
 import math
 import sys
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..config import OPT_KEY, option
 from ..errors import PanovoccError
 from ..geometry.cameras import TWELVE_PITCH_DEG, ViewRig
 
@@ -103,38 +104,36 @@ class ViewSampler:
 
 @dataclass
 class ViewsConfig:
-    """Options of ``panovocc views`` (the field metadata is each option's help: unit and range).
+    """Options of ``panovocc views``, declared once (help with units, ranges: cli/options.py reads them).
 
-    seq: panoramic (ERP) sequence folder to read; out: folder to write (views.json + twelve pinhole
-    sequences); fov_deg: field of view of every view; size: view width = height in pixels (None: W / 4,
-    the panorama's angular resolution at the view centre for a 90-degree view); pitch_deg: elevation of
-    the upper and lower rows; overwrite: replace a previous views output in ``out``.
+    seq: panoramic (ERP) sequence folder to read; out: folder to write (views.json, config.json and twelve
+    pinhole sequences); fov_deg: field of view of every view, degrees; size: view width = height in pixels
+    (None: W / 4, the panorama's angular resolution at the view centre for a 90-degree view); pitch_deg:
+    elevation of the upper and lower rows, degrees; overwrite: replace a previous views output in ``out``.
     """
 
-    seq: Path = field(metadata={"help": "Panoramic (ERP) sequence folder to split (meta.json, rgb/, depth/, "
-                                        "poses.txt; semantic/ carried when present)."})
-    out: Path = field(metadata={"help": "Folder to write: views.json and twelve pinhole sequences "
-                                        "view_NN_azAAA_{up,mid,down}/."})
-    fov_deg: float = field(default=90.0, metadata={"help": "Horizontal = vertical field of view of every view, "
-                                                           "degrees, in [10, 170].", "min": 10.0, "max": 170.0})
-    size: int | None = field(default=None, metadata={"help": "View width = height in pixels, 8 to 4096 "
-                                                             "(default: ERP width / 4).", "min": 8, "max": 4096})
-    pitch_deg: float = field(default=TWELVE_PITCH_DEG, metadata={
-        "help": "Pitch of the upper (+) and lower (-) rows, degrees, in [0, 90].", "min": 0.0, "max": 90.0})
-    progress: bool = field(default=True, metadata={"help": "Show a progress bar on stderr."})
-    overwrite: bool = field(default=False, metadata={"help": "Replace a previous panovocc views output in OUT "
-                                                             "(never any other folder, never an input)."})
+    seq: Path = option(argument=True, metavar="SEQ", help="Panoramic (ERP) sequence folder to split (meta.json, "
+                       "rgb/, depth/, poses.txt; semantic/ carried when present).")
+    out: Path = option(argument=True, metavar="OUT", help="Folder to write: views.json, config.json and twelve "
+                       "pinhole sequences view_NN_azAAA_{up,mid,down}/.")
+    fov_deg: float = option(90.0, min=10.0, max=170.0, help="Horizontal = vertical field of view of every view, "
+                            "degrees.")
+    size: int | None = option(None, min=8, max=4096, show_default="ERP width / 4",
+                              help="View width = height in pixels (lookup tables: 40 bytes a view pixel).")
+    pitch_deg: float = option(TWELVE_PITCH_DEG, min=0.0, max=90.0, help="Pitch of the upper (+) and lower (-) "
+                              "rows, degrees.")
+    progress: bool = True
+    overwrite: bool = option(False, help="Replace a previous panovocc views output in OUT (never any other "
+                             "folder, never an input).")
 
     def check(self) -> None:
-        """Raise :class:`PanovoccError` on an option outside its range."""
+        """Raise :class:`PanovoccError` on an option outside its declared range (for calls from Python)."""
         for name in ("fov_deg", "size", "pitch_deg"):
             value = getattr(self, name)
-            if value is None:
-                continue
-            meta = self.__dataclass_fields__[name].metadata
-            if not (math.isfinite(value) and meta["min"] <= value <= meta["max"]):
-                raise PanovoccError(f"--{name.replace('_', '-')} is {value}; expected in "
-                                    f"[{meta['min']}, {meta['max']}]")
+            opt = self.__dataclass_fields__[name].metadata[OPT_KEY]
+            if value is not None and not (math.isfinite(value) and opt.min <= value <= opt.max):
+                raise PanovoccError(f"--{name.replace('_', '-')} must be >= {opt.min:g} and <= {opt.max:g}, "
+                                    f"got {value:g}")
 
 
 def rig_for(cfg: ViewsConfig, erp_width: int) -> ViewRig:
@@ -146,8 +145,9 @@ def rig_for(cfg: ViewsConfig, erp_width: int) -> ViewRig:
 def run_views(cfg: ViewsConfig) -> dict:
     """Split every frame of ``cfg.seq`` into twelve pinhole views written under ``cfg.out``; returns a summary.
 
-    Writes ``OUT/views.json`` (the resolved config, the source, each view's name, direction, intrinsics and
-    ``T_cam_view``) and one pinhole sequence per view (CONVENTIONS.md layout: meta.json with
+    Writes ``OUT/config.json`` (the config as given, io/runconfig.py), ``OUT/views.json`` (the resolved
+    config, the source, each view's name, direction, intrinsics and ``T_cam_view``) and one pinhole
+    sequence per view (CONVENTIONS.md layout: meta.json with
     ``"camera": "pinhole"`` and fx, fy, cx, cy; rgb/, depth/ z-depth, semantic/ when the source has labels;
     poses.txt ``T_world_view = T_world_cam @ T_cam_view``). The folder is built aside and renamed whole.
     """
@@ -158,6 +158,7 @@ def run_views(cfg: ViewsConfig) -> dict:
     from ..config import DEPTH_SCALE
     from ..io.atomic import atomic_dir, check_output, write_text
     from ..io.images import write_png
+    from ..io.runconfig import CONFIG_NAME, RUNTIME_ONLY, write_run_config
     from ..io.sequence import Sequence, SequenceMeta, frame_images, write_meta, write_sequence_poses
 
     cfg.check()
@@ -172,7 +173,7 @@ def run_views(cfg: ViewsConfig) -> dict:
     cam = rig[0].camera
     n = len(seq)
     t0 = time.perf_counter()
-    resolved = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items() if k != "progress"}
+    resolved = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items() if k not in RUNTIME_ONLY}
     resolved["size"] = cam.width
     views_doc = {
         "config": resolved,
@@ -205,6 +206,7 @@ def run_views(cfg: ViewsConfig) -> dict:
                 for path, image in frame_images(tmp / view.name, i, rgb[k], z[k],
                                                 None if lab is None else lab[k], DEPTH_SCALE):
                     write_png(path, image)
+        write_run_config(tmp / CONFIG_NAME, cfg)
         write_text(tmp / VIEWS_JSON, json.dumps(views_doc, indent=2) + "\n")
     dt = time.perf_counter() - t0
     return {"frames": n, "views": len(rig), "size": cam.width, "fx": cam.fx, "labels": seq.has_labels,

@@ -151,7 +151,7 @@ def test_views_cli_end_to_end(tmp_path, capsys):
     doc = json.loads((out / "views.json").read_text())
     names = [v["name"] for v in doc["views"]]
     assert names == ViewRig.twelve(24).names
-    assert sorted(p.name for p in out.iterdir()) == sorted(names + ["views.json"])
+    assert sorted(p.name for p in out.iterdir()) == sorted(names + ["views.json", "config.json"])
     rig = ViewRig.twelve(24)
     for view in rig:
         s = Sequence(out / view.name)
@@ -169,10 +169,12 @@ def test_views_cli_end_to_end(tmp_path, capsys):
     rc, cap = cli("views", tmp_path / "seq", tmp_path / "views2", "--size", 24)
     assert rc == 0
     a, b = tree_bytes(out), tree_bytes(tmp_path / "views2")
-    assert a.keys() == b.keys() and len(a) == 1 + 12 * (1 + 1 + 3 * 3)
-    assert all(a[k] == b[k] for k in a if k != "views.json")
+    assert a.keys() == b.keys() and len(a) == 2 + 12 * (1 + 1 + 3 * 3)
+    assert all(a[k] == b[k] for k in a if k not in ("views.json", "config.json"))
     doc2 = json.loads(b["views.json"])
     assert doc2["config"].pop("out") != doc["config"].pop("out") and doc2 == doc
+    c1, c2 = json.loads(a["config.json"]), json.loads(b["config.json"])
+    assert c1.pop("out") != c2.pop("out") and c1 == c2 and c1["fov_deg"] == 90.0 and c1["pitch_deg"] == 45.0
     # the overwrite rule: refused without --overwrite, replaced with it, never over another kind of folder
     rc, cap = cli("views", tmp_path / "seq", out, "--size", 24)
     assert rc == 2 and "--overwrite" in cap.err
@@ -218,11 +220,14 @@ def test_views_bad_inputs_write_nothing(tmp_path, capsys):
     assert rc == 2 and "erp" in err and not (tmp_path / "out2").exists()
 
 
-def test_views_help_names_units():
-    from typer.testing import CliRunner
+def test_views_help_names_units_and_options_are_the_config():
+    import typer
 
-    from panovocc_cli.cli import app
+    from panovocc_cli.cli import load_commands
+    from panovocc_cli.cli.options import option_specs
+    from panovocc_cli.baselines.views import ViewsConfig
 
-    r = CliRunner().invoke(app, ["views", "--help"], env={"COLUMNS": "200"})
-    assert r.exit_code == 0
-    assert "degrees" in r.output and "pixels" in r.output and "--overwrite" in r.output
+    cmd = typer.main.get_command(load_commands()).commands["views"]
+    helps = {p.name: p.help or "" for p in cmd.params}
+    assert {s.name for s in option_specs(ViewsConfig)} == set(helps) - {"help"}
+    assert "degrees" in helps["fov_deg"] and "pixels" in helps["size"] and "10 <= x <= 170" in helps["fov_deg"]
