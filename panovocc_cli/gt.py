@@ -10,16 +10,16 @@ there: such voxels become 254 (occupied, no class). Every other voxel inside the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
-from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS, MAX_VOXEL_SIZE, option
+from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS
 from .errors import PanovoccError
 from .geometry.lattice import bounds_to_grid, index_to_center
 from .grid import OCCUPIED_UNKNOWN_CLASS, Grid
+from .gt_config import GtConfig  # noqa: F401  (re-export: its public home until now)
 
 BOUNDARY_EPS = GT_BOUNDARY_EPS  # voxel units (config.py)
 MIN_AREA = 1e-10  # voxel units^2: pieces smaller than this (edges, corners touching a voxel) are dropped
@@ -224,18 +224,6 @@ def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:
         labels.reshape(-1)[vox[win]] = lab
     names = ["empty"] + list(scene.class_names[1:])
     return Grid(labels, index_to_center(i0, h), h, names).validate()
-
-
-@dataclass
-class GtConfig:
-    """Options of ``panovocc gt``: scene (Replica-format folder), out (.npz), voxel_size (metres), overwrite."""
-
-    scene: Path = option(argument=True, metavar="SCENE", help="Replica-format scene folder.")
-    out: Path = option(argument=True, metavar="OUT",
-                       help="Ground-truth grid to write (.npz: labels, origin, voxel_size, class_names).")
-    voxel_size: float = option(DEFAULT_VOXEL_SIZE, min=0, min_open=True, max=MAX_VOXEL_SIZE,
-                               help="Voxel edge length in metres.")
-    overwrite: bool = option(False, help="Replace an existing OUT file (never an input).")
 
 
 def run_gt(cfg: GtConfig) -> dict:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import typer
 
 from ..datasets.synth import SynthConfig
-from ..gt import GtConfig
+from ..gt_config import GtConfig
 from ..rendering.render import RenderConfig
 from ._app import app
 from .options import OptionValues, config_command

@@ -10,8 +10,7 @@ import typer
 from ..errors import PanovoccError
 from ..mapping.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
-from ..mapping.pipeline import MapConfig
-from ..mapping.semantic import SegevalConfig, SemanticParams
+from ..mapping.config import MapConfig, SegevalConfig, SemanticParams
 from ._app import app
 from .options import OptionValues, build_config, config_command
 

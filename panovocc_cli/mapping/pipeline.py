@@ -25,7 +25,6 @@ import dataclasses
 import shutil
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,82 +38,13 @@ from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
+from .config import FORMAT_VERSION, MapConfig, SemanticParams, _typed  # noqa: F401  (re-exports)
 from .export import point_colors
-from .mapper import FORMAT_VERSION, Mapper, MapperConfig
-from .params import GeometryParams, OccupancyParams
-from .semantic import SemanticParams
+from .mapper import Mapper, MapperConfig
+from .params import GeometryParams, OccupancyParams  # noqa: F401  (re-exports)
 
 CONFIG_NAME = mapstore.CONFIG_NAME
 MEMORY_NAME = mapstore.MEMORY_NAME
-
-
-@dataclass
-class MapConfig:
-    """Everything ``panovocc map`` needs; saved resolved as ``OUT/config.json``.
-
-    The run's own fields (``seq``, ``out``, ``poses``, ``checkpoint_every``, ``stride`` as requested, the
-    segmenter spec, noise and seed and ``ply_color`` in ``semantic``) sit beside the mapper's parameters
-    (``geometry``, ``occupancy``, the rest of ``semantic``): :meth:`mapper_config`.
-    """
-
-    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ", cli_optional=True,
-                      help="Sequence folder (CONVENTIONS.md layout); omit with --resume.")
-    out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT", cli_optional=True,
-                      help="Output folder for the memory, prediction.npz and map.ply.")
-    poses: str | None = option(None, cli_type=Path, parse=str,
-                               help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt.")
-    checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
-    geometry: GeometryParams = field(default_factory=GeometryParams)
-    occupancy: OccupancyParams = field(default_factory=OccupancyParams)
-    # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
-    stride: int = option(0, min=0, max=MAX_STRIDE,
-                         help="Pixel stride s of the kernel lift; 0 = auto, max(1, W // 256) (4 at 1024).")
-    # segmenter, vocabulary, GSC; the default "auto" = simulated when the sequence has labels, else none
-    semantic: SemanticParams = field(default_factory=SemanticParams)
-
-    def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["format_version"] = FORMAT_VERSION
-        return d
-
-    @classmethod
-    def from_json(cls, d: dict, where) -> "MapConfig":
-        if not isinstance(d, dict):
-            raise PanovoccError("not a panovocc map config (expected a JSON object)", where)
-        version = d.get("format_version", 1)
-        if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
-            raise PanovoccError(f"format_version {version!r}: this panovocc reads map formats 1 to {FORMAT_VERSION} "
-                                "(a newer panovocc wrote it, or the file is corrupt)", where)
-        try:
-            g = _typed(GeometryParams, d["geometry"])
-            o = _typed(OccupancyParams, d["occupancy"])
-            s = SemanticParams.from_json(d.get("semantic"))
-            return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
-                       checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
-                       stride=int(d.get("stride", 0)), semantic=s)
-        except (KeyError, TypeError, ValueError, AttributeError) as e:
-            raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
-
-    def mapper_config(self) -> MapperConfig:
-        """The mapper's part of a resolved config (the vocabulary is empty for ``--segmenter none``)."""
-        s = self.semantic
-        return MapperConfig(geometry=self.geometry, occupancy=self.occupancy,
-                            vocab=list(s.vocab) if s.enabled else [], use_gsc=s.use_gsc, gsc=s.gsc,
-                            weights=s.weights)
-
-
-def _typed(cls, d: dict):
-    """``cls(**d)`` with each value checked against the type of the field's default (int accepted for float)."""
-    if not isinstance(d, dict):
-        raise TypeError(f"{cls.__name__} section is {type(d).__name__}, expected an object")
-    defaults = cls()
-    for k, v in d.items():
-        if not hasattr(defaults, k):
-            raise TypeError(f"unknown {cls.__name__} key {k!r}")
-        want = type(getattr(defaults, k))
-        if not (type(v) is want or (want is float and type(v) is int)):
-            raise TypeError(f"{k} is {v!r}, expected {want.__name__}")
-    return cls(**d)
 
 
 def resolve_semantic(p: SemanticParams, seq: Sequence) -> SemanticParams:

@@ -30,79 +30,20 @@ Export (:func:`label_occupied`): the occupied set comes from the geometry alone;
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence as Seq
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, option
 from ..errors import PanovoccError
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
-from ..semantics.evidence import EvidenceWeights
-from ..semantics.gsc import GSCParams
+from ..semantics.gsc import GSCParams  # noqa: F401  (re-export)
+from ..semantics.params import EvidenceWeights
+from .config import (PLY_COLORS, SEGMENTER_AUTO, SEGMENTER_NONE, SegevalConfig,  # noqa: F401  (re-exports)
+                     SemanticParams, mapper_gsc_params)
 from .memory import ChannelSpec, Delta, quantize
 
-SEGMENTER_NONE = "none"
-SEGMENTER_AUTO = "auto"
-PLY_COLORS = ("class", "rgb", "height")
 UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
-
-
-def mapper_gsc_params() -> GSCParams:
-    """GSC parameters of ``panovocc map``: the library defaults with stronger spatial regularisation.
-
-    ``lambda_s = 8`` and ``iterations = 20`` (library: 1 and 10), tuned on the synthetic scene of seed 0
-    and checked on seed 1 (docs/mapping.md, "Semantic memory"). ``s_g = 0.5`` is kept: the mapper's
-    signed score g is in per-frame support units (about 0.1..1 on surfaces), the scale GSC assumes,
-    and the result is flat in s_g over 0.25..2.
-    """
-    return GSCParams(lambda_s=8.0, iterations=20)
-
-
-@dataclass
-class SemanticParams:
-    """Semantic part of a map's configuration (saved in ``OUT/config.json``).
-
-    segmenter : ``auto`` (simulated when the sequence has labels, else an error), ``simulated``,
-        ``precomputed:DIR`` or ``none`` (geometry only: every occupied voxel 254)
-    vocab : vocabulary spec (``eval8,open4``, ``a,b,c``; None = eval8 + open4) before :func:`resolve`,
-        the list of canonical names after it
-    noise, seed : the simulated segmenter's noise level (0 = exact) and seed
-    use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
-    ply_color : colours of map.ply: ``class`` (class colours, grey for 254), ``rgb`` (mean pixel colour),
-        ``height``
-    """
-
-    segmenter: str = option(SEGMENTER_AUTO, show_default=False,
-                            help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none "
-                                 "(geometry only, occupied voxels 254). Default: simulated when SEQ has labels, else "
-                                 "you must choose.")
-    vocab: object = option(None, cli_type=str, help="Vocabulary chosen at run time: class names and sets, comma- or "
-                                                    "+-separated (eval8, open4, eval12, e.g. 'eval8,pillow'); "
-                                                    "default eval8,open4.")
-    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 1 = default realistic "
-                                           "errors, 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
-    use_gsc: bool = option(True, flag="--no-gsc", negate=True, help="Ablation: raw argmax of the fused evidence, no GSC.")
-    ply_color: str = option("class", choices=PLY_COLORS, help="map.ply colours: class (class colours, grey = no class) "
-                                                              "| rgb (mean pixel colour) | height.")
-    gsc: GSCParams = field(default_factory=mapper_gsc_params)
-    weights: EvidenceWeights = field(default_factory=EvidenceWeights)
-
-    @property
-    def enabled(self) -> bool:
-        return self.segmenter != SEGMENTER_NONE
-
-    @classmethod
-    def from_json(cls, d: dict | None) -> "SemanticParams":
-        """Inverse of ``dataclasses.asdict``; a config without a semantic section is a geometry-only map."""
-        if d is None:
-            return cls(segmenter=SEGMENTER_NONE, vocab=[])
-        d = dict(d)
-        gsc = dataclasses.replace(mapper_gsc_params(), **d.pop("gsc", {}))
-        weights = EvidenceWeights(**d.pop("weights", {}))
-        return cls(gsc=gsc, weights=weights, **d)
 
 
 def resolve(p: SemanticParams, seq) -> SemanticParams:
@@ -279,20 +220,6 @@ def relabel_from_ground_truth(pred: Grid, gt: Grid, max_dist_vox: float = 0.0) -
         s_ijk = src[nn[ok]]
         out[tuple(need[ok].T)] = gt.labels[tuple(s_ijk.T)]
     return Grid(out, pred.origin, pred.voxel_size, list(gt.class_names))
-
-
-@dataclass
-class SegevalConfig:
-    """``panovocc segeval``: the segmenter's own per-frame 2D mIoU on a labelled sequence."""
-
-    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ",
-                      help="Sequence folder with ground-truth labels (semantic/).")
-    segmenter: str = option("simulated", help="Segmenter to score: simulated | precomputed:DIR.")
-    vocab: object = option(None, cli_type=str, help="Vocabulary (as for map); default eval8,open4.")
-    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
-    classes: str = option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c).")
-    every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
 
 
 def run_segeval(cfg: SegevalConfig, progress: bool = True):

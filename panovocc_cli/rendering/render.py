@@ -18,7 +18,6 @@ import numpy as np
 from ..classes import canonical_name
 from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS, option
 from ..errors import PanovoccError
-from ..geometry.erp import check_erp_size
 
 BACKENDS = ("raycast", "pyrender")
 
@@ -73,6 +72,7 @@ def run_render(cfg: RenderConfig) -> dict:
     from ..io.atomic import atomic_dir, check_output
     from ..io.poses import read_poses
     from ..io.runconfig import CONFIG_NAME, write_run_config
+    from ..geometry.erp import check_erp_size
     from ..io.images import write_png
     from ..io.sequence import SequenceMeta, frame_images, write_meta, write_sequence_poses
     from .noise import NOISE_PARAMS, degrade

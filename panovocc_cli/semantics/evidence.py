@@ -19,21 +19,11 @@ Defaults (:class:`EvidenceWeights`) and why:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
-
-
-@dataclass(frozen=True)
-class EvidenceWeights:
-    """Parameters of eta = c * w_erp(phi) * w_range(r) (see the module docstring)."""
-
-    erp_power: float = 1.0
-    erp_floor: float = 0.05
-    range_scale: float = 4.0  # metres
+from .params import EvidenceWeights  # noqa: F401  (re-export: its public home until now)
 
 
 def softmax(logits: np.ndarray, axis: int = -1) -> np.ndarray:

@@ -1,0 +1,173 @@
+"""The configs of ``panovocc map`` and ``panovocc segeval``, in a module that imports nothing heavy.
+
+``panovocc --help`` builds every command's options from the stage configs (cli/options.py), so the
+modules holding them import only the standard library, numpy-free parameter modules
+(:mod:`.params`, :mod:`panovocc_cli.semantics.params`, :mod:`panovocc_cli.semantics.gsc`) and
+:mod:`panovocc_cli.config` -- never numba. The public names stay importable from their former homes
+(:mod:`.pipeline`: ``MapConfig``; :mod:`.semantic`: ``SemanticParams``, ``SegevalConfig``, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..config import DEFAULT_SEED, MAX_STRIDE, option
+from ..errors import PanovoccError
+from ..semantics.gsc import GSCParams
+from ..semantics.params import EvidenceWeights
+from .params import GeometryParams, OccupancyParams
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .mapper import MapperConfig
+
+FORMAT_VERSION = 3  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule
+
+SEGMENTER_NONE = "none"
+SEGMENTER_AUTO = "auto"
+PLY_COLORS = ("class", "rgb", "height")
+
+
+def mapper_gsc_params() -> GSCParams:
+    """GSC parameters of ``panovocc map``: the library defaults with stronger spatial regularisation.
+
+    ``lambda_s = 8`` and ``iterations = 20`` (library: 1 and 10), tuned on the synthetic scene of seed 0
+    and checked on seed 1 (docs/mapping.md, "Semantic memory"). ``s_g = 0.5`` is kept: the mapper's
+    signed score g is in per-frame support units (about 0.1..1 on surfaces), the scale GSC assumes,
+    and the result is flat in s_g over 0.25..2.
+    """
+    return GSCParams(lambda_s=8.0, iterations=20)
+
+
+@dataclass
+class SemanticParams:
+    """Semantic part of a map's configuration (saved in ``OUT/config.json``).
+
+    segmenter : ``auto`` (simulated when the sequence has labels, else an error), ``simulated``,
+        ``precomputed:DIR`` or ``none`` (geometry only: every occupied voxel 254)
+    vocab : vocabulary spec (``eval8,open4``, ``a,b,c``; None = eval8 + open4) before :func:`resolve`,
+        the list of canonical names after it
+    noise, seed : the simulated segmenter's noise level (0 = exact) and seed
+    use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
+    ply_color : colours of map.ply: ``class`` (class colours, grey for 254), ``rgb`` (mean pixel colour),
+        ``height``
+    """
+
+    segmenter: str = option(SEGMENTER_AUTO, show_default=False,
+                            help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none "
+                                 "(geometry only, occupied voxels 254). Default: simulated when SEQ has labels, else "
+                                 "you must choose.")
+    vocab: object = option(None, cli_type=str, help="Vocabulary chosen at run time: class names and sets, comma- or "
+                                                    "+-separated (eval8, open4, eval12, e.g. 'eval8,pillow'); "
+                                                    "default eval8,open4.")
+    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 1 = default realistic "
+                                           "errors, 0 = exact).")
+    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    use_gsc: bool = option(True, flag="--no-gsc", negate=True, help="Ablation: raw argmax of the fused evidence, no GSC.")
+    ply_color: str = option("class", choices=PLY_COLORS, help="map.ply colours: class (class colours, grey = no class) "
+                                                              "| rgb (mean pixel colour) | height.")
+    gsc: GSCParams = field(default_factory=mapper_gsc_params)
+    weights: EvidenceWeights = field(default_factory=EvidenceWeights)
+
+    @property
+    def enabled(self) -> bool:
+        return self.segmenter != SEGMENTER_NONE
+
+    @classmethod
+    def from_json(cls, d: dict | None) -> "SemanticParams":
+        """Inverse of ``dataclasses.asdict``; a config without a semantic section is a geometry-only map."""
+        if d is None:
+            return cls(segmenter=SEGMENTER_NONE, vocab=[])
+        d = dict(d)
+        gsc = dataclasses.replace(mapper_gsc_params(), **d.pop("gsc", {}))
+        weights = EvidenceWeights(**d.pop("weights", {}))
+        return cls(gsc=gsc, weights=weights, **d)
+
+
+@dataclass
+class SegevalConfig:
+    """``panovocc segeval``: the segmenter's own per-frame 2D mIoU on a labelled sequence."""
+
+    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ",
+                      help="Sequence folder with ground-truth labels (semantic/).")
+    segmenter: str = option("simulated", help="Segmenter to score: simulated | precomputed:DIR.")
+    vocab: object = option(None, cli_type=str, help="Vocabulary (as for map); default eval8,open4.")
+    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
+    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    classes: str = option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c).")
+    every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
+
+
+@dataclass
+class MapConfig:
+    """Everything ``panovocc map`` needs; saved resolved as ``OUT/config.json``.
+
+    The run's own fields (``seq``, ``out``, ``poses``, ``checkpoint_every``, ``stride`` as requested, the
+    segmenter spec, noise and seed and ``ply_color`` in ``semantic``) sit beside the mapper's parameters
+    (``geometry``, ``occupancy``, the rest of ``semantic``): :meth:`mapper_config`.
+    """
+
+    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ", cli_optional=True,
+                      help="Sequence folder (CONVENTIONS.md layout); omit with --resume.")
+    out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT", cli_optional=True,
+                      help="Output folder for the memory, prediction.npz and map.ply.")
+    poses: str | None = option(None, cli_type=Path, parse=str,
+                               help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt.")
+    checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
+    geometry: GeometryParams = field(default_factory=GeometryParams)
+    occupancy: OccupancyParams = field(default_factory=OccupancyParams)
+    # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
+    stride: int = option(0, min=0, max=MAX_STRIDE,
+                         help="Pixel stride s of the kernel lift; 0 = auto, max(1, W // 256) (4 at 1024).")
+    # segmenter, vocabulary, GSC; the default "auto" = simulated when the sequence has labels, else none
+    semantic: SemanticParams = field(default_factory=SemanticParams)
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["format_version"] = FORMAT_VERSION
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict, where) -> "MapConfig":
+        if not isinstance(d, dict):
+            raise PanovoccError("not a panovocc map config (expected a JSON object)", where)
+        version = d.get("format_version", 1)
+        if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
+            raise PanovoccError(f"format_version {version!r}: this panovocc reads map formats 1 to {FORMAT_VERSION} "
+                                "(a newer panovocc wrote it, or the file is corrupt)", where)
+        try:
+            g = _typed(GeometryParams, d["geometry"])
+            o = _typed(OccupancyParams, d["occupancy"])
+            s = SemanticParams.from_json(d.get("semantic"))
+            return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
+                       checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
+                       stride=int(d.get("stride", 0)), semantic=s)
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
+
+    def mapper_config(self) -> "MapperConfig":
+        """The mapper's part of a resolved config (the vocabulary is empty for ``--segmenter none``)."""
+        from .mapper import MapperConfig
+
+        s = self.semantic
+        return MapperConfig(geometry=self.geometry, occupancy=self.occupancy,
+                            vocab=list(s.vocab) if s.enabled else [], use_gsc=s.use_gsc, gsc=s.gsc,
+                            weights=s.weights)
+
+
+def _typed(cls, d: dict):
+    """``cls(**d)`` with each value checked against the type of the field's default (int accepted for float)."""
+    if not isinstance(d, dict):
+        raise TypeError(f"{cls.__name__} section is {type(d).__name__}, expected an object")
+    defaults = cls()
+    for k, v in d.items():
+        if not hasattr(defaults, k):
+            raise TypeError(f"unknown {cls.__name__} key {k!r}")
+        want = type(getattr(defaults, k))
+        if not (type(v) is want or (want is float and type(v) is int)):
+            raise TypeError(f"{k} is {v!r}, expected {want.__name__}")
+    return cls(**d)
+
+
