@@ -34,12 +34,6 @@ NOISE_MODELS = ("none", "realistic")
 """Depth noise models of the renderer: none, or realistic (rendering/noise.py)."""
 DEPTH_SCALE = 1000.0
 """uint16 depth PNG units per metre (millimetres)."""
-MIN_WIDTH = 64
-"""Pixels: the narrowest ERP image render, bench and demo accept (a 64 x 32 panorama, 5.6 degrees a pixel)."""
-MAX_STRIDE = 64
-"""Pixels: the largest kernel-lift stride map accepts (a larger one leaves nothing to map)."""
-MAX_PICTURE_PX = 16384
-"""Pixels: the widest picture show writes."""
 
 # ------------------------------------------------------------------------------------- tolerances
 RIGID_TOL = 1e-4
@@ -114,3 +108,86 @@ def option(default: Any = MISSING, *, help: str, default_factory: Any = MISSING,
     if default_factory is not MISSING:
         return dataclasses.field(default_factory=default_factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
+
+
+def option_name(field_name: str, o: Opt) -> str:
+    """How the user types a field: its option (``--voxel-size``) or, for an argument, its metavar (``SEQ``)."""
+    if o.argument:
+        return o.metavar or field_name.upper()
+    return o.flag or "--" + field_name.replace("_", "-")
+
+
+def bounds_words(o: Opt) -> str:
+    """The declared range in words: ``> 0 and <= 10``."""
+    lo = None if o.min is None else f"{'>' if o.min_open else '>='} {o.min:g}"
+    hi = None if o.max is None else f"<= {o.max:g}"
+    return " and ".join(t for t in (lo, hi) if t)
+
+
+def check_option(name: str, o: Opt, value: Any) -> Any:
+    """``value`` checked against the declared choices, range and parity of an option called ``name``.
+
+    The one place where declared ranges are enforced: the command line (cli/options.py) and
+    :func:`validate_config` (every ``run_*``, for Python API users) both call it.
+
+    Returns
+    -------
+    The value, a choice normalised with ``strip().lower()``.
+
+    Raises
+    ------
+    PanovoccError
+        One line naming the option: not one of the choices, not a number, NaN, outside the range, odd.
+    """
+    from .errors import PanovoccError
+
+    if value is None or isinstance(value, bool):
+        return value
+    if o.choices is not None:
+        v = value.strip().lower() if isinstance(value, str) else value
+        if v not in o.choices:
+            raise PanovoccError(f"{name}: {value!r} is not one of {', '.join(o.choices)}")
+        return v
+    if o.min is None and o.max is None and not o.even:
+        return value
+    if not isinstance(value, (int, float)) and not (hasattr(value, "dtype") and value.dtype.kind in "iuf"):
+        raise PanovoccError(f"{name} must be a number, got {value!r}")
+    if value != value:  # NaN
+        raise PanovoccError(f"{name} must be a number, got {value}")
+    lo_bad = o.min is not None and (value <= o.min if o.min_open else value < o.min)
+    if lo_bad or (o.max is not None and value > o.max):
+        shown = value if isinstance(value, int) else f"{float(value):g}"
+        raise PanovoccError(f"{name} must be {bounds_words(o)}, got {shown}")
+    if o.even and int(value) % 2:
+        raise PanovoccError(f"{name} must be even, got {value}")
+    return value
+
+
+def validate_config(cfg: Any) -> Any:
+    """Check every declared option of a stage config (and of its nested configs) against its declaration.
+
+    The ranges, choices and parity written on the fields with :func:`option` are the only ones: each
+    ``run_*`` calls this first, so a Python API user gets the same one-line :class:`PanovoccError`
+    as the command line, before any work or write.
+
+    Parameters
+    ----------
+    cfg : a config dataclass instance (``MapConfig``, ``RenderConfig``, ...)
+
+    Returns
+    -------
+    ``cfg``, or a copy with choices normalised (``" Realistic"`` -> ``"realistic"``).
+    """
+    changes = {}
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        o = f.metadata.get(OPT_KEY)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            new = validate_config(value)
+        elif o is not None and not o.negate:
+            new = check_option(option_name(f.name, o), o, value)
+        else:
+            continue
+        if new is not value:
+            changes[f.name] = new
+    return dataclasses.replace(cfg, **changes) if changes else cfg

@@ -14,8 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from .config import DEFAULT_SEED, DEFAULT_WIDTH, MIN_WIDTH, NOISE_MODELS, option
-from .errors import PanovoccError
+from .config import DEFAULT_SEED, DEFAULT_WIDTH, MIN_WIDTH, NOISE_MODELS, option, validate_config
 
 
 @dataclass
@@ -38,19 +37,10 @@ class DemoConfig:
     overwrite: bool = option(False, help="Replace a previous demo's outputs in OUT (never any other folder).")
 
 
-def check_demo_config(cfg: DemoConfig) -> None:
-    """Refuse bad option values before any stage runs or writes (:class:`PanovoccError`)."""
-    from .geometry.erp import check_erp_size
-
-    if cfg.seed < 0:
-        raise PanovoccError(f"--seed must be >= 0, got {cfg.seed}")
-    if cfg.frames < 2:
-        raise PanovoccError(f"--frames must be at least 2, got {cfg.frames}")
-    if cfg.width < MIN_WIDTH:
-        raise PanovoccError(f"--width must be at least {MIN_WIDTH}, got {cfg.width}")
-    check_erp_size(cfg.width)
-    if cfg.noise not in NOISE_MODELS:
-        raise PanovoccError(f"unknown noise model {cfg.noise!r} (expected one of {', '.join(NOISE_MODELS)})")
+def check_demo_config(cfg: DemoConfig) -> DemoConfig:
+    """Refuse bad option values before any stage runs or writes (:class:`PanovoccError`); returns the checked
+    config (choices normalised)."""
+    return validate_config(cfg)  # seed, frames, width (even, >= MIN_WIDTH), noise: declared on DemoConfig
 
 
 def _stage(name: str, fn: Callable[[], object], timings: dict[str, float], log) -> object:
@@ -77,12 +67,12 @@ def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
     from .mapping.semantic import SemanticParams
     from .rendering.render import RenderConfig, run_render
 
-    check_demo_config(cfg)
+    cfg = check_demo_config(cfg)
     out = Path(cfg.out)
     check_output(out, "demo", cfg.overwrite)  # the stages below replace only what a demo wrote in ``out``
     scene, seq, gt, mapped = out / "scene", out / "seq", out / "gt.npz", out / "map"
     t: dict[str, float] = {}
-    _stage("synth", lambda: run_synth(SynthConfig(out=scene, seed=cfg.seed, frames=cfg.frames)), t, log)
+    _stage("synth", lambda: run_synth(SynthConfig(out=scene, seed=cfg.seed, frames=cfg.frames, overwrite=True)), t, log)
     _stage("gt", lambda: run_gt(GtConfig(scene=scene, out=gt, overwrite=True)), t, log)
     _stage("render", lambda: run_render(RenderConfig(scene=scene, out=seq, width=cfg.width, noise=cfg.noise,
                                                      seed=cfg.seed, progress=cfg.progress,
@@ -92,11 +82,12 @@ def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
                                   progress=cfg.progress), t, log)
     pred = mapped / "prediction.npz"
     scores = _stage("eval", lambda: run_eval(EvalConfig(pairs=[(pred, gt)], classes="eval12",
-                                                        out_dir=out / "eval")), t, log)
+                                                        out_dir=out / "eval", overwrite=True)), t, log)
     _stage("show", lambda: run_show(ShowConfig(grids=[pred, gt], out_png=out / "compare.png", cut_top=3,
-                                               titles=["PanOVOcc prediction", "ground truth"])), t, log)
+                                               titles=["PanOVOcc prediction", "ground truth"],
+                                               overwrite=True)), t, log)
     _stage("coverage", lambda: run_coverage(CoverageConfig(seq=seq, gt=gt, out_dir=out / "coverage",
-                                                           progress=cfg.progress)), t, log)
+                                                           progress=cfg.progress, overwrite=True)), t, log)
     write_run_config(out / CONFIG_NAME, cfg)
     paths = {"scene": scene, "sequence": seq, "ground_truth": gt, "map": mapped, "prediction": pred,
              "tables": out / "eval", "picture": out / "compare.png", "coverage": out / "coverage" / "coverage.png",

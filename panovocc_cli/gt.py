@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS
+from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS, validate_config
 from .errors import PanovoccError
 from .geometry.lattice import bounds_to_grid, index_to_center
 from .grid import OCCUPIED_UNKNOWN_CLASS, Grid
@@ -233,6 +233,7 @@ def run_gt(cfg: GtConfig) -> dict:
     from .io.grid import write_grid
     from .io.runconfig import config_path_beside, write_run_config
 
+    cfg = validate_config(cfg)  # voxel_size in (0, MAX_VOXEL_SIZE]: declared on GtConfig
     check_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.scene, *scene_files(cfg.scene)), folder=False)
     scene = read_replica_scene(cfg.scene)
     grid = voxelize_scene(scene, cfg.voxel_size)

@@ -9,6 +9,8 @@ compiled, with the seeded confidence model). The tests compare each pair.
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 
 from panovocc_cli.errors import PanovoccError

@@ -14,16 +14,10 @@ from .options import OptionValues, config_command
 
 
 @config_command(app, SynthConfig, "synth")
-def synth(
-    o: OptionValues,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous panovocc scene in SCENE (never "
-                                                             "any other folder)."),
-) -> None:
+def synth(o: OptionValues) -> None:
     """Write a procedural multi-room indoor scene in Replica's format, with a trajectory through every room."""
     from ..datasets.synth import run_synth
-    from ..io.atomic import check_output
 
-    check_output(o["out"], "scene", overwrite)
     s = run_synth(SynthConfig(**o))
     typer.echo(f"{o['out']}: {s['rooms']} rooms, {s['faces']} quads, {s['objects']} objects, "
                f"{len(s['classes'])} classes, {s['frames']} poses over {s['path_m']:.1f} m")

@@ -29,8 +29,6 @@ def eval_cmd(
         show_default=False, metavar="PRED GT [--pair PRED GT]..."),
     pairs: Optional[Path] = typer.Option(None, "--pairs", help="CSV listing pairs: pred,gt per line (relative to it)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (scores in percent) instead of a table."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous eval output in --out (never any "
-                                                             "other folder)."),
 ) -> None:
     """Score predictions against ground truth (FreeOcc protocol: IoU, per-class IoU, mIoU, percent).
 
@@ -43,10 +41,10 @@ def eval_cmd(
     all_pairs = parse_pair_tokens(paths or [])
     if pairs is not None:
         all_pairs += read_pairs_csv(pairs)
-    if o["out_dir"] is not None:
+    if o["out_dir"] is not None and pairs is not None:  # run_eval checks the pairs; the CSV is the command's
         from ..io.atomic import check_output
 
-        check_output(o["out_dir"], "eval", overwrite, inputs=[p for pair in all_pairs for p in pair] + [pairs])
+        check_output(o["out_dir"], "eval", o["overwrite"], inputs=[pairs])
     cfg = EvalConfig(pairs=all_pairs, **o)
     res = run_eval(cfg)
     if as_json:
@@ -80,14 +78,9 @@ def parse_pair_tokens(tokens: list[str]) -> list[tuple[Path, Path]]:
 @config_command(app, CoverageConfig, "coverage")
 def coverage_cmd(
     o: OptionValues,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a previous coverage output in --out (never "
-                                                             "any other folder)."),
 ) -> None:
     """Fraction of GT occupied voxels observed so far, panorama vs. forward perspective camera (Fig. 5)."""
     from ..evaluation.run import run_coverage
-    from ..io.atomic import check_output
-
-    check_output(o["out_dir"], "coverage", overwrite, inputs=(o["seq"], o["gt"]))
     cfg = CoverageConfig(**o)
     r = run_coverage(cfg)
     n = len(r["frame"])
@@ -103,16 +96,12 @@ def coverage_cmd(
 def show_cmd(
     o: OptionValues,
     paths: List[Path] = typer.Argument(..., help="GRID.npz [GRID2.npz ...] OUT.png: grids side by side, then the PNG."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT.png (never an input)."),
 ) -> None:
     """Render semantic occupancy grids as a picture (paper class colours, legend of classes present)."""
     from ..evaluation.run import run_show
 
     if len(paths) < 2:
         raise PanovoccError("expected GRID.npz [GRID2.npz ...] OUT.png")
-    from ..io.atomic import check_output
-
-    check_output(paths[-1], "picture", overwrite, inputs=paths[:-1], folder=False)
     cfg = ShowConfig(grids=list(paths[:-1]), out_png=paths[-1], **o)
     h, w = run_show(cfg)
     typer.echo(f"wrote {cfg.out_png} ({w}x{h} px, {len(cfg.grids)} panel{'s' if len(cfg.grids) > 1 else ''})")
@@ -121,15 +110,9 @@ def show_cmd(
 @config_command(convert_app, ConvertReplicaOccConfig, "replicaocc")
 def convert_replicaocc_cmd(
     o: OptionValues,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT_NPZ (never an input)."),
 ) -> None:
     """ReplicaOcc .pkl (scene_dim, global_labels, global_pts[, global_mask]) -> grid .npz."""
     from ..evaluation.run import run_convert_replicaocc
-    from ..io.atomic import check_output
-
-    class_names = o["class_names"]
-    names_file = Path(class_names) if class_names and "," not in class_names else None
-    check_output(o["out_npz"], "grid", overwrite, inputs=(o["pkl"], names_file), folder=False)
     g, shift, names_from = run_convert_replicaocc(ConvertReplicaOccConfig(**o))
     occ = int(((g.labels != 0) & (g.labels != 255)).sum())
     src = {"given": "given", "file": "from the file", "replica": "FreeOcc's replica_name.txt"}[names_from]
@@ -141,13 +124,9 @@ def convert_replicaocc_cmd(
 @config_command(convert_app, ConvertToReplicaOccConfig, "to-replicaocc")
 def convert_to_replicaocc_cmd(
     o: OptionValues,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing OUT_PKL (never an input)."),
 ) -> None:
     """Grid .npz -> ReplicaOcc .pkl that FreeOcc's load_full_scene_occ reads (voxel_size, class_names keys added)."""
     from ..evaluation.run import run_convert_to_replicaocc
-    from ..io.atomic import check_output
-
-    check_output(o["out_pkl"], "pickle", overwrite, inputs=(o["grid"], o["like"]), folder=False)
     cfg = ConvertToReplicaOccConfig(**o)
     g, unmatched = run_convert_to_replicaocc(cfg)
     typer.echo(f"wrote {cfg.out_pkl}: scene_dim {list(g.labels.shape)} of {g.voxel_size:g} m, {cfg.ids} ids"

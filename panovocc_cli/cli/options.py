@@ -32,8 +32,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import typer
 
-from ..config import OPT_KEY, Opt
-from ..errors import PanovoccError
+from ..config import OPT_KEY, Opt, check_option, option_name
 
 
 class OptionValues(dict):
@@ -82,7 +81,7 @@ def option_specs(config_cls: type, only: Sequence[str] | None = None, exclude: S
 
 
 def _flag(spec: _Spec) -> str:
-    return spec.opt.flag or "--" + spec.field.replace("_", "-")
+    return option_name(spec.field, spec.opt)
 
 
 def _range_text(o: Opt) -> str:
@@ -96,12 +95,6 @@ def _range_text(o: Opt) -> str:
     if o.even:
         parts.append("even")
     return f" (range: {', '.join(parts)})" if parts else ""  # not [..]: rich would read it as markup
-
-
-def _bounds_words(o: Opt) -> str:
-    lo = None if o.min is None else f"{'>' if o.min_open else '>='} {o.min:g}"
-    hi = None if o.max is None else f"<= {o.max:g}"
-    return " and ".join(t for t in (lo, hi) if t)
 
 
 def _help(spec: _Spec) -> str:
@@ -143,20 +136,7 @@ def check_value(spec: _Spec, value: Any) -> Any:
         return not value
     if value is None or value is ...:
         return spec.default if o.cli_type is not None else value
-    name = _flag(spec) if not o.argument else spec.field.upper()
-    if o.choices is not None and isinstance(value, str):
-        v = value.strip().lower()
-        if v not in o.choices:
-            raise PanovoccError(f"{name}: {value!r} is not one of {', '.join(o.choices)}")
-        value = v
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        if value != value:  # NaN
-            raise PanovoccError(f"{name} must be a number, got {value}")
-        lo_bad = o.min is not None and (value <= o.min if o.min_open else value < o.min)
-        if lo_bad or (o.max is not None and value > o.max):
-            raise PanovoccError(f"{name} must be {_bounds_words(o)}, got {value if isinstance(value, int) else f'{value:g}'}")
-        if o.even and int(value) % 2:
-            raise PanovoccError(f"{name} must be even, got {value}")
+    value = check_option(option_name(spec.field, o), o, value)
     if o.parse is not None:
         value = o.parse(value)
     return value

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import EVAL8, OPEN4, canonical_name
-from ..config import DEFAULT_SEED, option
+from ..config import DEFAULT_SEED, option, validate_config
 from ..errors import PanovoccError
 from ..geometry.poses import look_at
 from .meshbuild import MeshBuilder, Paint, Transform2D
@@ -55,12 +55,13 @@ class SynthConfig:
     out: Path = option(argument=True, metavar="SCENE", help="Scene folder to write (Replica layout: "
                        "habitat/mesh_semantic.ply, habitat/info_semantic.json, traj.txt).")
     seed: int = option(DEFAULT_SEED, min=0, help="Random seed; the same seed gives the same files.")
-    rooms: int | None = option(None, min=1, max=6, help="Number of rooms, 1-6 (default: 2 or 3 from the seed).")
+    rooms: int | None = option(None, min=1, max=MAX_ROOMS, help="Number of rooms, 1-6 (default: 2 or 3 from the seed).")
     frames: int = option(60, min=2, help="Number of trajectory poses.")
     offset: tuple[float, float, float] | None = option(
         None, cli_type=str, parse=lambda text: parse_offset(text), metavar="X,Y,Z",
         help="X,Y,Z metres: move the home (laid out from the origin) by this offset instead of the seeded one "
              "(e.g. 0,0,0 puts the floor on a voxel face).")
+    overwrite: bool = option(False, help="Replace a previous panovocc scene in SCENE (never any other folder).")
 
 
 @dataclass
@@ -976,11 +977,13 @@ def generate_scene(seed: int = DEFAULT_SEED, rooms: int | None = None, frames: i
 
 def run_synth(cfg: SynthConfig) -> dict:
     """Write ``cfg.out`` as a Replica-format scene plus ``traj.txt``; returns a summary dict."""
-    from ..io.atomic import atomic_dir
+    from ..io.atomic import atomic_dir, check_output
     from ..io.poses import write_poses
     from ..io.runconfig import CONFIG_NAME, write_run_config
     from .replica import TRAJ_NAME, write_replica_scene
 
+    cfg = validate_config(cfg)  # seed, rooms, frames: the ranges declared on SynthConfig
+    check_output(cfg.out, "scene", cfg.overwrite)  # as the command line: never replace what synth did not write
     g = generate_scene(cfg.seed, cfg.rooms, cfg.frames, cfg.offset)
     with atomic_dir(cfg.out) as tmp:
         write_replica_scene(tmp, g["vertices"], g["quads"], g["face_object"], g["colors"], g["object_classes"])

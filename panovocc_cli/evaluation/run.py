@@ -17,9 +17,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..config import validate_config
 from ..config import COVERAGE_TOL_M, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_VOXEL_SIZE, option
 from ..errors import PanovoccError
-from ..io.atomic import check_output_path, output_file, output_folder, write_text
+from ..io.atomic import check_output, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
 from ..io.runconfig import config_path_beside, write_run_config
 from ..io.tables import write_csv
@@ -50,6 +51,7 @@ class EvalConfig:
                        help="Mask for the --json top level: freeocc (headline) | observed.")
     out_dir: Path | None = option(None, flag="--out",
                                   help="Folder for scores.csv/.md/.tex, counts.csv, scores.json, config.json.")
+    overwrite: bool = option(False, help="Replace a previous eval output in --out (never any other folder).")
 
 
 def run_eval(cfg: EvalConfig) -> dict[str, Any]:
@@ -59,12 +61,11 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     -------
     {"pooled": {mask: Result}, "pairs": [{mask: Result}, ...] (one per pair, in order)}
     """
-    if cfg.mask not in MASKS:
-        raise PanovoccError(f"unknown mask {cfg.mask!r} (expected {' or '.join(MASKS)})")
+    cfg = validate_config(cfg)
     if not cfg.pairs:
         raise PanovoccError("no pairs to score (give PRED GT, --pair or --pairs)")
     if cfg.out_dir is not None:
-        check_output_path(cfg.out_dir, folder=True)
+        check_output(cfg.out_dir, "eval", cfg.overwrite, inputs=[p for pair in cfg.pairs for p in pair])
     per_pair = []
     for pred_path, gt_path in cfg.pairs:
         pred, gt = read_grid(pred_path), read_grid(gt_path)
@@ -192,6 +193,7 @@ class CoverageConfig:
     tol_m: float = option(COVERAGE_TOL_M, min=0, help="Metres: a depth point this close to a voxel face also "
                                                       "observes the voxel across it.")
     progress: bool = True
+    overwrite: bool = option(False, help="Replace a previous coverage output in --out (never any other folder).")
 
 
 def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
@@ -209,16 +211,13 @@ def run_coverage(cfg: CoverageConfig) -> dict[str, np.ndarray]:
     from ..io.figures import write_png
     from .show import coverage_figure
 
-    check_output_path(cfg.out_dir, folder=True)
+    cfg = validate_config(cfg)  # fields of view in (0, 179], aspect > 0, every >= 1: declared above
+    check_output(cfg.out_dir, "coverage", cfg.overwrite, inputs=(cfg.seq, cfg.gt))
     seq = Sequence(cfg.seq)
     if seq.meta.camera != "erp":
         raise PanovoccError("coverage needs a panoramic (ERP) sequence; this one is pinhole", cfg.seq)
     seq.check_files(("depth",))  # every depth frame present and whole before any work
     gt = read_grid(cfg.gt)
-    if not 0 < cfg.hfov_deg < 180 or (cfg.vfov_deg is not None and not 0 < cfg.vfov_deg < 180):
-        raise PanovoccError("fields of view must be in (0, 180) degrees")
-    if not cfg.aspect > 0:
-        raise PanovoccError(f"--aspect must be positive, got {cfg.aspect}")
     hfov = math.radians(cfg.hfov_deg)
     vfov = math.radians(cfg.vfov_deg) if cfg.vfov_deg is not None else vertical_fov(hfov, cfg.aspect)
     tracker = CoverageTracker(gt, seq.meta.width, seq.meta.height, hfov, vfov, cfg.tol_m)
@@ -252,6 +251,7 @@ class ShowConfig:
     titles: list[str] | None = option(None, cli_type=str, parse=lambda s: [t.strip() for t in s.split(",")],
                                       help="Comma-separated panel titles, one per grid.")
     width_px: int = option(1600, min=64, max=MAX_PICTURE_PX, help="PNG width in pixels.")
+    overwrite: bool = option(False, help="Replace an existing OUT.png (never an input).")
 
 
 def run_show(cfg: ShowConfig) -> tuple[int, int]:
@@ -259,15 +259,14 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
     from ..io.figures import write_png
     from .show import panels_figure, render_panels
 
+    cfg = validate_config(cfg)
     if not cfg.grids:
         raise PanovoccError("no grids to show")
     if cfg.titles is not None and len(cfg.titles) != len(cfg.grids):
         raise PanovoccError(f"{len(cfg.titles)} titles for {len(cfg.grids)} grids")
-    if not 64 <= cfg.width_px <= MAX_PICTURE_PX:
-        raise PanovoccError(f"--width-px must be in [64, {MAX_PICTURE_PX}], got {cfg.width_px}")
+    check_output(cfg.out_png, "picture", cfg.overwrite, inputs=cfg.grids, folder=False)
     if cfg.out_png.suffix.lower() != ".png":
         raise PanovoccError("output must be a .png file", cfg.out_png)
-    check_output_path(cfg.out_png, folder=False)
     _not_an_input(cfg.out_png, cfg.grids)
     grids = [read_grid(p) for p in cfg.grids]
     images, legend = render_panels(grids, cfg.cut_top, panel_px=max(64, cfg.width_px // len(grids)))
@@ -312,6 +311,7 @@ class ConvertReplicaOccConfig:
         help=f"Voxel edge, metres (default: the file's voxel_size key, else {DEFAULT_VOXEL_SIZE}).")
     tol_m: float | None = option(None, min=0, help="Metres a centre may be off the lattice (default: a quarter voxel).")
     allow_shift: bool = option(False, help="Translate an off-lattice grid onto the lattice.")
+    overwrite: bool = option(False, help="Replace an existing OUT_NPZ (never an input).")
 
 
 def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
@@ -324,7 +324,9 @@ def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
     """
     from ..io.replicaocc import class_names_source, load_pickle, parse_class_names, replicaocc_to_grid
 
-    check_output_path(cfg.out_npz, folder=False)
+    cfg = validate_config(cfg)
+    names_file = Path(cfg.class_names) if cfg.class_names and "," not in cfg.class_names else None
+    check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=(cfg.pkl, names_file), folder=False)
     _not_an_input(cfg.out_npz, [cfg.pkl])
     names = parse_class_names(cfg.class_names) if cfg.class_names else None
     data = load_pickle(cfg.pkl)
@@ -356,6 +358,7 @@ class ConvertToReplicaOccConfig:
     like: Path | None = option(None, help="Ground-truth grid .npz whose voxels to write (FreeOcc compares arrays "
                                           "index by index).")
 
+    overwrite: bool = option(False, help="Replace an existing OUT_PKL (never an input).")
 
 def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
     """Grid ``.npz`` -> dense ReplicaOcc ``.pkl``.
@@ -368,9 +371,8 @@ def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
     from ..io.replicaocc import write_replicaocc
     from .align import resample_onto
 
-    if cfg.ids not in ("replica", "own"):
-        raise PanovoccError(f"--ids must be replica or own, got {cfg.ids!r}")
-    check_output_path(cfg.out_pkl, folder=False)
+    cfg = validate_config(cfg)
+    check_output(cfg.out_pkl, "pickle", cfg.overwrite, inputs=(cfg.grid, cfg.like), folder=False)
     _not_an_input(cfg.out_pkl, [cfg.grid, cfg.like])
     grid = read_grid(cfg.grid)
     if cfg.like is not None:

@@ -8,7 +8,6 @@ writes them (no timestamp or software tag, so the same input gives the same byte
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np

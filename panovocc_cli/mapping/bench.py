@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, DEFAULT_WIDTH, MIN_WIDTH, option
+from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, DEFAULT_WIDTH, MIN_WIDTH, option, validate_config
 from ..errors import PanovoccError
 from ..io.atomic import write_text
 from ..io.sequence import Sequence, read_meta
@@ -46,8 +46,8 @@ class BenchConfig:
                         help="ERP width of the benchmark sequence, pixels (height = width / 2).")
     voxel_size: float = DEFAULT_VOXEL_SIZE  # metres
     seed: int = DEFAULT_SEED
-    repeats: int = 5  # timed passes of each side (median reported)
-    process_repeats: int = 3  # timed whole-process runs of each command (median reported)
+    repeats: int = option(5, min=1, help="Timed passes of each side (median reported).")  # not a CLI option
+    process_repeats: int = option(3, min=1, help="Timed whole-process runs of each command (median reported).")
 
 
 def cube_face_maps(height: int, width: int, face: int):
@@ -239,8 +239,7 @@ def run_bench(cfg: BenchConfig) -> dict:
     from .params import GeometryParams
     from .pipeline import MapConfig, resolve
 
-    if cfg.frames < 2 or cfg.width < 64 or cfg.repeats < 1 or cfg.process_repeats < 1:
-        raise PanovoccError("bench needs at least 2 frames, width >= 64, repeats >= 1 and process_repeats >= 1")
+    cfg = validate_config(cfg)  # frames, width, repeats: the ranges declared on BenchConfig
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     seq_dir = bench_sequence(out, cfg)

@@ -51,11 +51,11 @@ from ..semantics.evidence import EvidenceWeights
 from ..semantics.gsc import GSCParams
 from .contributors import geometry_delta
 from .export import MapExport, export_memory
-from .config import FORMAT_VERSION
+from .config import FORMAT_VERSION, mapper_gsc_params
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, Delta, VoxelMemory, merge_deltas
 from .params import GeometryParams, OccupancyParams
 from .rpu import DeltaStore, ReversibleMemory
-from .semantic import mapper_gsc_params, semantic_channels, semantic_delta
+from .semantic import semantic_channels, semantic_delta
 
 # (2: semantic section; a version-1 config is a geometry-only map)
 KERNELS = ("psvf", "point")

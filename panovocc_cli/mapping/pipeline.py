@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import MAX_STRIDE, option
+from ..config import validate_config
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
@@ -38,10 +38,9 @@ from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
-from .config import FORMAT_VERSION, MapConfig, SemanticParams, _typed  # noqa: F401  (re-exports)
+from .config import MapConfig, SemanticParams
 from .export import point_colors
 from .mapper import Mapper, MapperConfig
-from .params import GeometryParams, OccupancyParams  # noqa: F401  (re-exports)
 
 CONFIG_NAME = mapstore.CONFIG_NAME
 MEMORY_NAME = mapstore.MEMORY_NAME
@@ -135,19 +134,10 @@ def _open_sequence(cfg: MapConfig, poses: np.ndarray | None = None) -> Sequence:
 
 def resolve(cfg: MapConfig, width: int) -> MapConfig:
     """Fill the automatic stride and check parameter ranges."""
+    cfg = validate_config(cfg)  # the ranges declared on the fields (config.py option)
     g = cfg.geometry
     stride = cfg.stride if cfg.stride > 0 else auto_stride(width)
-    if cfg.stride < 0:
-        raise PanovoccError(f"--stride must be >= 0 (0 = auto), got {cfg.stride}")
-    if cfg.checkpoint_every < 0:
-        raise PanovoccError(f"--checkpoint-every must be >= 0, got {cfg.checkpoint_every}")
-    if cfg.stride > MAX_STRIDE:
-        raise PanovoccError(f"--stride must be at most {MAX_STRIDE} pixels (0 = auto), got {cfg.stride}")
-    if not 0 < g.kappa <= 10:
-        raise PanovoccError(f"--kappa must be in (0, 10], got {g.kappa}")
-    if not 0 <= cfg.occupancy.nu <= 1:
-        raise PanovoccError(f"--nu must be in [0, 1] (a share of observations), got {cfg.occupancy.nu}")
-    if not (np.isfinite(g.max_range) and g.max_range > g.min_range):
+    if not (np.isfinite(g.max_range) and g.max_range > g.min_range):  # across two fields: not a declared range
         raise PanovoccError(f"--max-range must be a distance in metres above min_range {g.min_range}, got {g.max_range}")
     cfg = dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride),
                               seq=str(Path(cfg.seq).resolve()), out=str(Path(cfg.out).resolve()),
@@ -210,6 +200,13 @@ def load_memory(out: str | Path):
     return VoxelMemory.from_arrays(arrays, Path(out) / MEMORY_NAME), done, poses[: done]
 
 
+def _remove_unless_started(out: Path) -> None:
+    """Remove the output folder this run created when it holds no ``config.json`` (the run failed before
+    its first output); a folder that holds one is a resumable run and stays."""
+    if out.is_dir() and not (out / CONFIG_NAME).exists():
+        shutil.rmtree(out, ignore_errors=True)
+
+
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
             progress: bool = True, stop_after: int | None = None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
@@ -252,6 +249,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     else:
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
+        cfg = validate_config(cfg)
         seq = _open_sequence(cfg)
         cfg = resolve(cfg, seq.meta.width)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
@@ -259,6 +257,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         out = Path(cfg.out)
         check_output(out, "map", overwrite, inputs=(cfg.seq, cfg.poses))
         _check_inputs(cfg, seq)  # every frame present with the right size and type, before the first write
+        if not (out.exists() or out.is_symlink()):  # a run that fails before config.json leaves nothing behind
+            held.callback(_remove_unless_started, out)
         out.mkdir(parents=True, exist_ok=True)
         held.enter_context(_writer_lock(out))
         if (out / CONFIG_NAME).exists():

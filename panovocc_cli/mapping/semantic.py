@@ -35,9 +35,9 @@ from typing import Sequence as Seq
 
 import numpy as np
 
+from ..config import validate_config
 from ..errors import PanovoccError
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
-from ..semantics.gsc import GSCParams  # noqa: F401  (re-export)
 from ..semantics.params import EvidenceWeights
 from .config import (PLY_COLORS, SEGMENTER_AUTO, SEGMENTER_NONE, SegevalConfig,  # noqa: F401  (re-exports)
                      SemanticParams, mapper_gsc_params)
@@ -241,8 +241,7 @@ def run_segeval(cfg: SegevalConfig, progress: bool = True):
     from ..semantics.registry import build_segmenter
     from ..semantics.simulated import sequence_label_source
 
-    if cfg.every < 1:
-        raise PanovoccError(f"--every must be >= 1, got {cfg.every}")
+    cfg = validate_config(cfg)  # noise, seed, every: the ranges declared on SegevalConfig
     seq = Sequence(cfg.seq)
     if not seq.has_labels:
         raise PanovoccError("segeval needs ground-truth labels (semantic/)", seq.root)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import canonical_name
-from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS, option
+from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS, option, validate_config
 from ..errors import PanovoccError
 
 BACKENDS = ("raycast", "pyrender")
@@ -72,24 +72,12 @@ def run_render(cfg: RenderConfig) -> dict:
     from ..io.atomic import atomic_dir, check_output
     from ..io.poses import read_poses
     from ..io.runconfig import CONFIG_NAME, write_run_config
-    from ..geometry.erp import check_erp_size
     from ..io.images import write_png
     from ..io.sequence import SequenceMeta, frame_images, write_meta, write_sequence_poses
     from .noise import NOISE_PARAMS, degrade
 
-    if cfg.width < MIN_WIDTH:
-        raise PanovoccError(f"--width must be at least {MIN_WIDTH}, got {cfg.width}")
-    if cfg.seed < 0:
-        raise PanovoccError(f"--seed must be >= 0, got {cfg.seed}")
-    if cfg.threads < 0:
-        raise PanovoccError(f"--threads must be >= 0 (0 = all cores), got {cfg.threads}")
-    W, H = check_erp_size(cfg.width)
-    if cfg.backend not in BACKENDS:
-        raise PanovoccError(f"unknown backend {cfg.backend!r} (expected one of {', '.join(BACKENDS)})")
-    if cfg.noise not in NOISE_MODELS:
-        raise PanovoccError(f"unknown noise model {cfg.noise!r} (expected one of {', '.join(NOISE_MODELS)})")
-    if cfg.every < 1:
-        raise PanovoccError(f"--every must be at least 1, got {cfg.every}")
+    cfg = validate_config(cfg)  # width, every, seed, threads, backend, noise: the ranges declared above
+    W, H = cfg.width, cfg.width // 2  # even and >= MIN_WIDTH: declared on RenderConfig.width
     scene_paths(cfg.scene)  # a missing scene is named before its trajectory
     traj = Path(cfg.traj) if cfg.traj is not None else Path(cfg.scene) / TRAJ_NAME
     check_output(cfg.out, "sequence", cfg.overwrite, inputs=(cfg.scene, traj, *scene_files(cfg.scene)))
