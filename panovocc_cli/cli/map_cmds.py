@@ -10,7 +10,7 @@ import typer
 from ..errors import PanovoccError
 from ..mapping.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
-from ..mapping.config import MapConfig, SegevalConfig, SemanticParams
+from ..mapping.config import MapConfig, ReviseConfig, SegevalConfig, SemanticParams
 from ._app import app
 from .options import OptionValues, build_config, config_command
 
@@ -55,16 +55,12 @@ def map_cmd(
         typer.echo(f"{len(empty)} frame(s) had no valid depth and were mapped as empty observations: {shown}")
 
 
-@app.command()
-def revise(
-    out: Path = typer.Argument(..., help="Output folder of a finished `panovocc map` run."),
-    poses: Path = typer.Argument(..., help="Full pose file (one pose per frame, NICE-SLAM or TUM form)."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
-) -> None:
+@config_command(app, ReviseConfig, "revise")
+def revise(o: OptionValues) -> None:
     """Re-integrate exactly the frames whose pose changed, and rewrite OUT/prediction.npz and OUT/map.ply."""
     from ..mapping.pipeline import run_revise
 
-    s = run_revise(out, poses, progress=not quiet)
+    s = run_revise(ReviseConfig(**o))
     classed = f", {s['classed']} with a class" if "classed" in s else ""
     typer.echo(f"revised {s['revised']} of {s['frames']} frames in {s['seconds']:.2f} s: {s['occupied']} occupied"
                f"{classed}, {s['free']} free voxels")

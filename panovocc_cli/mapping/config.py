@@ -171,3 +171,18 @@ def _typed(cls, d: dict):
     return cls(**d)
 
 
+
+
+@dataclass
+class ReviseConfig:
+    """``panovocc revise``: re-integrate the frames of a finished map whose pose changed.
+
+    out : output folder of a finished ``panovocc map`` run; poses : full pose file (one pose per frame);
+    progress : draw a progress bar (``--quiet``: no)
+    """
+
+    out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT",
+                      help="Output folder of a finished `panovocc map` run.")
+    poses: str = option(cli_type=Path, parse=str, argument=True, metavar="POSES",
+                        help="Full pose file (one pose per frame, NICE-SLAM or TUM form).")
+    progress: bool = option(True, flag="--quiet", negate=True, help="No progress bar.")

@@ -64,12 +64,6 @@ def quantize(values, kind: str) -> np.ndarray:
     return np.rint(v).astype(np.int64)
 
 
-def dequantize(values, kind: str) -> np.ndarray:
-    """Inverse of :func:`quantize` (float64)."""
-    v = np.asarray(values, dtype=np.float64)
-    return v / FIXED_SCALE if kind == "fixed" else v
-
-
 @dataclass
 class Delta:
     """One frame's sparse contribution.

@@ -38,7 +38,7 @@ from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
-from .config import MapConfig, SemanticParams
+from .config import MapConfig, ReviseConfig, SemanticParams
 from .export import point_colors
 from .mapper import Mapper, MapperConfig
 
@@ -315,17 +315,25 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
 # revise
 
 
-def run_revise(out: str | Path, poses_path: str | Path, progress: bool = True) -> dict:
-    """Re-integrate exactly the frames whose pose differs in ``poses_path``; rewrite memory and exports.
+def run_revise(cfg: ReviseConfig | str | Path, poses_path: str | Path | None = None, progress: bool = True) -> dict:
+    """Re-integrate exactly the frames whose pose differs in ``cfg.poses``; rewrite memory and exports.
+
+    Called as ``run_revise(ReviseConfig(out, poses))`` or, as before, ``run_revise(out, poses_path,
+    progress)``.
 
     ``poses_path`` is a full pose file (one pose per frame); the pose file the map was made with is not
     read. Order of writes (:mod:`.rpu`): new deltas to staging names, then memory.npz (the commit point, it
     stores the poses), then the staged deltas renamed in place, then poses.txt, prediction.npz, map.ply.
     A run killed after the commit is completed by the next ``revise`` (staged deltas are rolled forward).
     """
-    out = Path(out)
+    if not isinstance(cfg, ReviseConfig):
+        if poses_path is None:
+            raise ValueError("run_revise needs a ReviseConfig or (out, poses_path)")
+        cfg = ReviseConfig(out=str(cfg), poses=str(poses_path), progress=progress)
+    cfg = validate_config(cfg)
+    out = Path(cfg.out)
     with _writer_lock(out):
-        return _run_revise(out, poses_path, progress)
+        return _run_revise(out, cfg.poses, cfg.progress)
 
 
 def _run_revise(out: Path, poses_path, progress: bool) -> dict:

@@ -145,3 +145,21 @@ def test_cli_map_revise_and_bad_input(room_seq, tmp_path, capsys):
     assert code == 0 and "revised 0 of 5" in io.out
     code, io = run("map", "--resume", str(tmp_path / "o"), "--quiet")
     assert code == 0
+
+
+@pytest.mark.parametrize("existed", [False, True])
+def test_map_failing_before_config_leaves_no_folder_it_created(room_seq, tmp_path, monkeypatch, existed):
+    from panovocc_cli.io import mapstore
+
+    def disk_full(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    out = tmp_path / "m"
+    if existed:
+        out.mkdir()
+    monkeypatch.setattr(mapstore, "write_map_config", disk_full)
+    with pytest.raises(OSError):
+        run_map(_cfg(room_seq, out), progress=False)
+    assert out.is_dir() == existed  # a folder the user made stays (empty but for nothing of ours)
+    if existed:
+        assert [p.name for p in out.iterdir() if not p.name.startswith(".")] == []

@@ -1,0 +1,119 @@
+"""Option ranges declared once (config.option) and enforced everywhere by config.validate_config: the
+command line and the Python API (every ``run_*``) refuse the same values with the same one-line message;
+run_* check their outputs as the command line does."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from panovocc_cli.config import OPT_KEY, validate_config
+from panovocc_cli.errors import PanovoccError
+
+
+def _configs():
+    from panovocc_cli.datasets.synth import SynthConfig
+    from panovocc_cli.demo import DemoConfig
+    from panovocc_cli.evaluation.run import (ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig,
+                                             EvalConfig, ShowConfig)
+    from panovocc_cli.gt_config import GtConfig
+    from panovocc_cli.mapping.bench import BenchConfig
+    from panovocc_cli.mapping.config import MapConfig, ReviseConfig, SegevalConfig
+    from panovocc_cli.rendering.render import RenderConfig
+
+    return [SynthConfig, DemoConfig, ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig, EvalConfig,
+            ShowConfig, GtConfig, BenchConfig, MapConfig, ReviseConfig, SegevalConfig, RenderConfig]
+
+
+def _with_required(cls, **kw):
+    """An instance with every field that has no default set to a placeholder path."""
+    need = {f.name: Path("x") for f in dataclasses.fields(cls)
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING}
+    need.update(kw)
+    return cls(**need)
+
+
+@pytest.mark.parametrize("cls", _configs(), ids=lambda c: c.__name__)
+def test_defaults_are_valid_and_every_command_declares_its_options(cls):
+    cfg = _with_required(cls)
+    assert validate_config(cfg) == cfg
+    assert any(OPT_KEY in f.metadata for f in dataclasses.fields(cls))
+
+
+def test_nested_range_names_the_option():
+    from panovocc_cli.mapping.config import MapConfig
+    from panovocc_cli.mapping.params import GeometryParams, OccupancyParams
+
+    with pytest.raises(PanovoccError, match=r"^--kappa must be > 0 and <= 10, got 11$"):
+        validate_config(MapConfig(seq="s", out="o", geometry=GeometryParams(kappa=11.0)))
+    with pytest.raises(PanovoccError, match=r"^--nu must be >= 0 and <= 1, got 1.5$"):
+        validate_config(MapConfig(seq="s", out="o", occupancy=OccupancyParams(nu=1.5)))
+    with pytest.raises(PanovoccError, match=r"^--stride must be >= 0 and <= 64, got 65$"):
+        validate_config(MapConfig(seq="s", out="o", stride=65))
+    with pytest.raises(PanovoccError, match="--voxel-size must be a number"):
+        validate_config(MapConfig(seq="s", out="o", geometry=GeometryParams(voxel_size=float("nan"))))
+
+
+def test_choices_normalised_and_parity():
+    from panovocc_cli.rendering.render import RenderConfig
+
+    cfg = validate_config(RenderConfig(scene=Path("a"), out=Path("b"), noise=" Realistic"))
+    assert cfg.noise == "realistic"
+    with pytest.raises(PanovoccError, match=r"^--noise: 'loud' is not one of none, realistic$"):
+        validate_config(RenderConfig(scene=Path("a"), out=Path("b"), noise="loud"))
+    with pytest.raises(PanovoccError, match=r"^--width must be even, got 255$"):
+        validate_config(RenderConfig(scene=Path("a"), out=Path("b"), width=255))
+
+
+@pytest.mark.parametrize("call, message", [
+    ("render_seed", "--seed must be >= 0, got -1"),
+    ("render_threads", "--threads must be >= 0, got -2"),
+    ("show_width", "--width-px must be >= 64 and <= 16384, got 10"),
+    ("demo_frames", "--frames must be >= 2, got 1"),
+    ("map_kappa", "--kappa must be > 0 and <= 10, got 0"),
+    ("revise_none", None),
+])
+def test_python_api_refuses_what_the_cli_refuses_before_any_write(tmp_path, call, message):
+    from panovocc_cli.demo import DemoConfig, run_demo
+    from panovocc_cli.evaluation.run import ShowConfig, run_show
+    from panovocc_cli.mapping.params import GeometryParams
+    from panovocc_cli.mapping.pipeline import MapConfig, run_map, run_revise
+    from panovocc_cli.rendering.render import RenderConfig, run_render
+
+    out = tmp_path / "out"
+    calls = {
+        "render_seed": lambda: run_render(RenderConfig(scene=tmp_path / "none", out=out, seed=-1)),
+        "render_threads": lambda: run_render(RenderConfig(scene=tmp_path / "none", out=out, threads=-2)),
+        "show_width": lambda: run_show(ShowConfig(grids=[tmp_path / "g.npz"], out_png=out, width_px=10)),
+        "demo_frames": lambda: run_demo(DemoConfig(out=out, frames=1)),
+        "map_kappa": lambda: run_map(MapConfig(seq=str(tmp_path / "none"), out=str(out),
+                                               geometry=GeometryParams(kappa=0.0))),
+        "revise_none": lambda: run_revise(out, tmp_path / "poses.txt"),
+    }
+    with pytest.raises(PanovoccError) as e:
+        calls[call]()
+    if message is not None:
+        assert str(e.value) == message
+    assert "\n" not in str(e.value)
+    assert not out.exists()
+
+
+def test_run_synth_checks_its_output_like_the_cli(tmp_path):
+    from panovocc_cli.datasets.synth import SynthConfig, run_synth
+
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep")
+    with pytest.raises(PanovoccError, match="not a panovocc scene|--overwrite"):
+        run_synth(SynthConfig(out=foreign, frames=2))
+    with pytest.raises(PanovoccError):
+        run_synth(SynthConfig(out=foreign, frames=2, overwrite=True))  # never replaces what synth did not write
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]
+
+    scene = tmp_path / "scene"
+    run_synth(SynthConfig(out=scene, seed=1, frames=2))
+    with pytest.raises(PanovoccError, match="--overwrite"):
+        run_synth(SynthConfig(out=scene, seed=2, frames=2))
+    run_synth(SynthConfig(out=scene, seed=2, frames=2, overwrite=True))
