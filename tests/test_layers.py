@@ -18,7 +18,7 @@ FLOORS = {
     "grid": 2, "frame": 2,
     "io": 3,
     "datasets": 4, "semantics": 4, "evaluation": 4,
-    "rendering": 5, "gt": 5,
+    "rendering": 5, "gt": 5, "gt_config": 5,
     "mapping": 6,
     "baselines": 7, "views": 7, "demo": 7,
     "cli": 8, "__main__": 9, "__init__": 9,
