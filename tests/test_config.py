@@ -14,6 +14,7 @@ from panovocc_cli.errors import PanovoccError
 
 
 def _configs():
+    from panovocc_cli.baselines.views import ViewsConfig
     from panovocc_cli.datasets.synth import SynthConfig
     from panovocc_cli.demo import DemoConfig
     from panovocc_cli.evaluation.run import (ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig,
@@ -24,7 +25,7 @@ def _configs():
     from panovocc_cli.rendering.render import RenderConfig
 
     return [SynthConfig, DemoConfig, ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig, EvalConfig,
-            ShowConfig, GtConfig, BenchConfig, MapConfig, ReviseConfig, SegevalConfig, RenderConfig]
+            ShowConfig, GtConfig, BenchConfig, MapConfig, ReviseConfig, SegevalConfig, RenderConfig, ViewsConfig]
 
 
 def _with_required(cls, **kw):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import OPT_KEY, option
+from ..config import option, validate_config
 from ..errors import PanovoccError
 from ..geometry.cameras import TWELVE_PITCH_DEG, ViewRig
 
@@ -128,13 +128,7 @@ class ViewsConfig:
 
     def check(self) -> None:
         """Raise :class:`PanovoccError` on an option outside its declared range (for calls from Python)."""
-        for name in ("fov_deg", "size", "pitch_deg"):
-            value = getattr(self, name)
-            opt = self.__dataclass_fields__[name].metadata[OPT_KEY]
-            if value is not None and not (math.isfinite(value) and opt.min <= value <= opt.max):
-                raise PanovoccError(f"--{name.replace('_', '-')} must be >= {opt.min:g} and <= {opt.max:g}, "
-                                    f"got {value:g}")
-
+        validate_config(self)
 
 def rig_for(cfg: ViewsConfig, erp_width: int) -> ViewRig:
     """The twelve-view rig of ``cfg`` for panoramas ``erp_width`` pixels wide."""
@@ -161,7 +155,7 @@ def run_views(cfg: ViewsConfig) -> dict:
     from ..io.runconfig import CONFIG_NAME, RUNTIME_ONLY, write_run_config
     from ..io.sequence import Sequence, SequenceMeta, frame_images, write_meta, write_sequence_poses
 
-    cfg.check()
+    cfg = validate_config(cfg)  # the ranges declared above (config.py option)
     seq = Sequence(cfg.seq)
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera is {seq.meta.camera!r}; views splits panoramic (erp) sequences",
