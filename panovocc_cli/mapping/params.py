@@ -40,6 +40,8 @@ class GeometryParams:
     n_fill: float = 0.4  # a frame counts in N where a measurement lies in the voxel or its support dA >= n_fill
     hit_k: float = 1.0  # surfel kernel: a measurement also counts in N for the voxels of x +- hit_k s n where
     hit_max: float = 0.0005  # metres; ... s (the fitted position's std along n) <= hit_max: planes on a voxel face
+    hit_amb: float = 1.0  # surfel kernel: a measurement with s > hit_max within hit_amb s of a voxel face counts in
+    # no voxel's N (ambiguous side; 0 = where it fell)
     carve_extent: bool = True  # carve only voxels whose whole box lies in front of the observed local plane
     n_floor: float = 0.001  # metres; surfel kernel: floor of the scale along the normal
     c_min: float = 0.25  # surfel kernel: |cos incidence| floor of the in-plane footprint stretch

@@ -6,7 +6,8 @@
 3. splat the kernels into a dense support grid A (:mod:`.splat`);
 4. free space F and valid comparisons O (:mod:`..freespace`);
 5. N: the voxels that hold a measurement (with the surfel kernel, also those within ``hit_k`` s_n of
-   it along the normal: a plane on a voxel face counts in both voxels), or where A >= ``n_fill``;
+   it along the normal: a plane on a voxel face counts in both voxels; a noisy measurement within
+   ``hit_amb`` s_n of a face counts in neither), or where A >= ``n_fill``;
 6. extraction of the voxels with support, a measurement or a comparison, in lattice order.
 """
 
@@ -37,16 +38,30 @@ def _mark_hits(x, h, lo, hits):
 
 
 @nb.njit(cache=True)
-def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, h, lo, hits):
+def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, hits):
     """Set ``hits`` to 1 in the voxels that contain a measurement x and, for a precise surfel (``surf`` 1,
     ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position along the
     normal), in those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
-    measurement that close to a voxel face counts as a view of both voxels of the face. Imprecise
-    measurements fall on both sides of a face by their own noise and are not spread."""
+    measurement that close to a voxel face counts as a view of both voxels of the face. An imprecise
+    surfel (s > s_max) whose segment ``x +- k_amb s axis`` crosses a voxel face marks no voxel: its own
+    noise does not say on which side of the face the surface lies, and counting it in the voxel it fell
+    in makes a plane within a few s of a face occupy both voxels (each noisy frame spills into the far
+    one). ``k_amb = 0`` counts every imprecise measurement where it fell."""
     nx, ny, nz = hits.shape
     for p in range(x.shape[0]):
         s = max(sa[p] - n_floor, 0.0) if surf[p] != 0 else 0.0
-        s = k * s if s <= s_max else 0.0
+        if s > s_max:
+            if k_amb > 0.0:
+                d = k_amb * s
+                amb = False
+                for c in range(3):
+                    if np.floor((x[p, c] - d * ax[p, c]) / h) != np.floor((x[p, c] + d * ax[p, c]) / h):
+                        amb = True
+                if amb:
+                    continue
+            s = 0.0
+        else:
+            s = k * s
         for e in range(3):
             f = s * (e - 1)
             i = int(np.floor((x[p, 0] + f * ax[p, 0]) / h)) - lo[0]
@@ -197,15 +212,17 @@ def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None
     """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
     its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
     kernel's ``surfels`` = (axes (n, 3), scales (n,) metres, surfel flags (n,) uint8), so do the voxels
-    that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max)."""
+    that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max; a surfel with
+    s - n_floor > hit_max whose segment ``x +- hit_amb (s - n_floor) n`` crosses a face marks none)."""
     F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
                  p.min_range, p.max_range, p.carve_extent)
     hits = np.zeros(A.shape, np.uint8)
-    if surfels is not None and p.hit_k > 0:
+    if surfels is not None and (p.hit_k > 0 or p.hit_amb > 0):
         ax, sa, surf = surfels
         _mark_hits_axis(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(ax, np.float64),
                         np.ascontiguousarray(sa, np.float64), np.ascontiguousarray(surf), float(p.n_floor),
-                        float(p.hit_k), float(p.hit_max), float(p.voxel_size), np.asarray(lo, np.int64), hits)
+                        float(p.hit_k), float(p.hit_max), float(p.hit_amb), float(p.voxel_size),
+                        np.asarray(lo, np.int64), hits)
     else:
         _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
     n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
