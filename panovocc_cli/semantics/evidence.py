@@ -333,6 +333,19 @@ def _row_points(depth, rays, v, P, rr, ok):
 
 
 @nb.njit(cache=True, inline="always")
+def _difference(okf, okb, a0, a1, a2, p0, p1, p2, b0, b1, b2):
+    """Central difference ``a - b`` where both neighbours are usable, one-sided ``a - p`` or ``p - b``
+    where one is, else 0 (the tangent estimate of :func:`_row_normals`)."""
+    if okf and okb:
+        return a0 - b0, a1 - b1, a2 - b2
+    if okf:
+        return a0 - p0, a1 - p1, a2 - p2
+    if okb:
+        return p0 - b0, p1 - b1, p2 - b2
+    return 0.0, 0.0, 0.0
+
+
+@nb.njit(cache=True, inline="always")
 def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
     """World-frame unit normals ``nw`` (3, W) of row ``v`` as :func:`erp_normals` (central differences,
     one-sided at invalid neighbours and depth jumps over ``max_jump`` relative range; 0 where undefined;
@@ -352,29 +365,12 @@ def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
         thr = max_jump * max(r, 1e-9)
         okf = oc_[j + 1] and abs(rc_[j + 1] - r) <= thr
         okb = oc_[j - 1] and abs(rc_[j - 1] - r) <= thr
-        a0, a1, a2 = Pc[0, j + 1], Pc[1, j + 1], Pc[2, j + 1]
-        b0, b1, b2 = Pc[0, j - 1], Pc[1, j - 1], Pc[2, j - 1]
-        if okf and okb:
-            du0, du1, du2 = a0 - b0, a1 - b1, a2 - b2
-        elif okf:
-            du0, du1, du2 = a0 - p0, a1 - p1, a2 - p2
-        elif okb:
-            du0, du1, du2 = p0 - b0, p1 - b1, p2 - b2
-        else:
-            du0, du1, du2 = 0.0, 0.0, 0.0
+        du0, du1, du2 = _difference(okf, okb, Pc[0, j + 1], Pc[1, j + 1], Pc[2, j + 1], p0, p1, p2,
+                                    Pc[0, j - 1], Pc[1, j - 1], Pc[2, j - 1])
         oku = okf or okb
         okf = has_dn and od_[j] and abs(rd_[j] - r) <= thr
         okb = has_up and ou_[j] and abs(ru_[j] - r) <= thr
-        a0, a1, a2 = Pd[0, j], Pd[1, j], Pd[2, j]
-        b0, b1, b2 = Pu[0, j], Pu[1, j], Pu[2, j]
-        if okf and okb:
-            dv0, dv1, dv2 = a0 - b0, a1 - b1, a2 - b2
-        elif okf:
-            dv0, dv1, dv2 = a0 - p0, a1 - p1, a2 - p2
-        elif okb:
-            dv0, dv1, dv2 = p0 - b0, p1 - b1, p2 - b2
-        else:
-            dv0, dv1, dv2 = 0.0, 0.0, 0.0
+        dv0, dv1, dv2 = _difference(okf, okb, Pd[0, j], Pd[1, j], Pd[2, j], p0, p1, p2, Pu[0, j], Pu[1, j], Pu[2, j])
         okv = okf or okb
         n0 = du1 * dv2 - du2 * dv1
         n1 = du2 * dv0 - du0 * dv2
