@@ -75,3 +75,22 @@ def render_room(width: int = 256, T_world_cam: np.ndarray | None = None):
     rng = np.random.default_rng(len(CLASS_NAMES))
     palette = rng.integers(0, 256, (len(CLASS_NAMES), 3)).astype(np.uint8)
     return labels, t_best.astype(np.float32), palette[labels]
+
+
+def circle_poses(n: int) -> np.ndarray:
+    """``n`` camera poses (n, 4, 4) on an ellipse around the room's centre, 1.4 m high, turning as they go."""
+    return np.stack([pose((0.8 * np.sin(2 * np.pi * i / n), 1.0 * np.cos(2 * np.pi * i / n), 1.4), yaw=0.9 * i)
+                     for i in range(n)])
+
+
+def write_labelled_room(seq, width: int, n: int):
+    """Render the furnished, labelled room from :func:`circle_poses` into a sequence folder ``seq``."""
+    from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
+
+    poses = circle_poses(n)
+    for i, T in enumerate(poses):
+        lab, d, rgb = render_room(width, T)
+        write_frame(seq, i, rgb, d, lab)
+    write_meta(seq, SequenceMeta(width=width, height=width // 2, frames=n, class_names=CLASS_NAMES))
+    write_sequence_poses(seq, poses)
+    return seq

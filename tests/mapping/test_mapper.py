@@ -3,24 +3,20 @@ are exact (bit-identical memory); an empty depth frame is an empty observation."
 
 import numpy as np
 import pytest
-from semantics_helpers import CLASS_NAMES, pose, render_room
+from semantics_helpers import circle_poses, write_labelled_room
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.cameras import ErpCamera
 from panovocc_cli.io import mapstore
 from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
-from panovocc_cli.io.sequence import Sequence, SequenceMeta, write_frame, write_meta, write_sequence_poses
+from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.mapping import Frame, Mapper, MapperConfig
 from panovocc_cli.mapping.pipeline import MapConfig, load_config, run_map, run_revise, sequence_frames
 
 W = 64
 N = 5
 
-
-def _poses(n):
-    return np.stack([pose((0.8 * np.sin(2 * np.pi * i / n), 1.0 * np.cos(2 * np.pi * i / n), 1.4), yaw=0.9 * i)
-                     for i in range(n)])
 
 
 def _moved(T, seed):
@@ -37,13 +33,7 @@ def _moved(T, seed):
 def seq_dir(tmp_path_factory):
     """The furnished, labelled room of semantics_helpers, 64x32, 5 frames."""
     seq = tmp_path_factory.mktemp("mapperseq") / "room"
-    poses = _poses(N)
-    for i, T in enumerate(poses):
-        lab, d, rgb = render_room(W, T)
-        write_frame(seq, i, rgb, d, lab)
-    write_meta(seq, SequenceMeta(width=W, height=W // 2, frames=N, class_names=CLASS_NAMES))
-    write_sequence_poses(seq, poses)
-    return seq
+    return write_labelled_room(seq, W, N)
 
 
 @pytest.fixture(scope="module")
@@ -245,7 +235,7 @@ def test_map_with_an_empty_depth_frame_and_revise_without_the_old_pose_file(seq_
     from panovocc_cli.io.images import write_png
 
     write_png(seq / "depth" / "000002.png", np.zeros((W // 2, W), np.uint16))  # the sensor dropped frame 2
-    wrong = _poses(N)
+    wrong = circle_poses(N)
     wrong[3] = _moved(wrong[3], 1)
     write_poses(tmp_path / "wrong.txt", wrong)
     with pytest.raises(SystemExit) as e:

@@ -4,12 +4,11 @@ import json
 
 import numpy as np
 import pytest
-from semantics_helpers import CLASS_NAMES, pose, render_room
+from semantics_helpers import CLASS_NAMES, circle_poses, write_labelled_room
 
 from panovocc_cli.grid import Grid
 from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
-from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
 from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.memory import FIXED_SCALE
 from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
@@ -19,22 +18,12 @@ W = 128
 N = 6
 
 
-def _poses(n):
-    return np.stack([pose((0.8 * np.sin(2 * np.pi * i / n), 1.0 * np.cos(2 * np.pi * i / n), 1.4), yaw=0.9 * i)
-                     for i in range(n)])
-
 
 @pytest.fixture(scope="module")
 def sem_seq(tmp_path_factory):
     """The furnished room of semantics_helpers (walls at x = +-2.5, y = +-3), labelled, 128x64, 6 frames."""
     seq = tmp_path_factory.mktemp("semseq") / "room"
-    poses = _poses(N)
-    for i, T in enumerate(poses):
-        lab, d, rgb = render_room(W, T)
-        write_frame(seq, i, rgb, d, lab)
-    write_meta(seq, SequenceMeta(width=W, height=W // 2, frames=N, class_names=CLASS_NAMES))
-    write_sequence_poses(seq, poses)
-    return seq
+    return write_labelled_room(seq, W, N)
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +113,7 @@ def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
 @pytest.mark.slow
 def test_revise_and_resume_exact_with_semantics(sem_seq, default_map, tmp_path):
     direct, _ = default_map
-    true = _poses(N)
+    true = circle_poses(N)
     wrong = true.copy()
     rng = np.random.default_rng(5)
     for i in (1, 4):
