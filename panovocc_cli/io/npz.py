@@ -31,6 +31,9 @@ def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray], compress: bool
                     raise TypeError(f"write_npz: array {name!r} has object dtype")
                 info = zipfile.ZipInfo(f"{name}.npy", date_time=_FIXED_DATE)
                 info.compress_type = method
+                # ZipFile.open(ZipInfo) ignores the archive's compresslevel: the entry carries its own
+                # (``_compresslevel`` up to Python 3.12, ``compress_level`` from 3.13)
+                setattr(info, "compress_level" if hasattr(info, "compress_level") else "_compresslevel", compresslevel)
                 info.external_attr = 0o644 << 16
                 with zf.open(info, "w", force_zip64=True) as f:
                     np.lib.format.write_array(f, arr, allow_pickle=False)
