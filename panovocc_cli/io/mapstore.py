@@ -30,6 +30,7 @@ MEMORY_NAME = "memory.npz"
 DELTAS_DIR = "deltas"
 STAGED_SUFFIX = ".new"  # a revised delta waiting for the memory file that commits it
 DELTA_COMPRESSLEVEL = 1  # zlib level of delta files (docs/mapping.md, "Delta store size")
+MEMORY_COMPRESSLEVEL = 1  # zlib level of memory.npz (channels stored as for deltas: compact, sparse rows)
 
 
 def delta_path(folder: str | Path, frame_id: int) -> Path:
@@ -53,60 +54,84 @@ def _compact(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def write_delta(path: str | Path, keys: np.ndarray, channels: Mapping[str, np.ndarray],
-                T_world_cam: np.ndarray) -> None:
+def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, np.ndarray]) -> None:
+    """Put ``channels`` ((n, width) integer arrays) into ``arrays`` as ``{prefix}ch_NAME``, each in the
+    smallest signed integer type that holds it. A channel that is zero on most rows is stored as its
+    non-zero rows and their row indices as differences ``{prefix}rows_NAME``: zlib no longer spends its
+    time on zeros."""
+    for name, arr in channels.items():
+        arr = np.asarray(arr)
+        arr = arr.reshape(n, arr.shape[-1] if arr.ndim == 2 else -1) if n == 0 else arr.reshape(n, -1)
+        rows = np.flatnonzero(arr.any(axis=1)) if n else np.zeros(0, np.int64)
+        if 2 * len(rows) < n:
+            arrays[f"{prefix}ch_{name}"] = _compact(arr[rows])
+            arrays[f"{prefix}rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
+        else:
+            arrays[f"{prefix}ch_{name}"] = _compact(arr)
+
+
+def _decode_channels(z, prefix: str, n: int) -> dict:
+    """Inverse of :func:`_encode_channels`: dict name -> (n, width) int64."""
+    ch = {}
+    head = f"{prefix}ch_"
+    for k in z.files if hasattr(z, "files") else z:
+        if not k.startswith(head):
+            continue
+        name = k[len(head):]
+        vals = np.asarray(z[k]).astype(np.int64)
+        if f"{prefix}rows_{name}" in (z.files if hasattr(z, "files") else z):  # sparse rows
+            rows = np.cumsum(np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64))
+            full = np.zeros((n, vals.shape[1] if vals.ndim == 2 else 1), np.int64)
+            full[rows] = vals.reshape(len(rows), full.shape[1])
+            ch[name] = full
+        else:
+            ch[name] = vals if vals.ndim == 2 else vals.reshape(n, -1)
+    return ch
+
+
+def _part_prefix(i: int) -> str:
+    return "" if i == 0 else f"p{i}_"
+
+
+def write_delta(path: str | Path, parts, T_world_cam: np.ndarray) -> None:
     """Atomically write one frame's delta.
 
     Parameters
     ----------
-    keys : (n,) int64, sorted unique voxel keys (``geometry.lattice.pack_keys``); stored as differences
-        (first key, then gaps), which compress to almost nothing
-    channels : dict name -> (n, width) int64; each stored in the smallest signed integer type that holds it.
-        A channel that is zero on most rows (the semantic channels of a merged delta, non-zero only where
-        pixels fell, against the geometry's free-space rows) is stored as its non-zero rows ``ch_NAME``
-        and their row indices as differences ``rows_NAME``: zlib no longer spends its time on zeros.
+    parts : sequence of (keys, channels), one per contributor (:class:`mapping.memory.FrameDelta`):
+        keys (n,) int64 sorted unique voxel keys (``geometry.lattice.pack_keys``), stored as differences
+        (first key, then gaps), which compress to almost nothing; channels dict name -> (n, width) int64
+        (:func:`_encode_channels`). Part 0's arrays are ``keys_diff``, ``ch_NAME``, ``rows_NAME``; part i's
+        carry the prefix ``p{i}_``.
     T_world_cam : (4, 4) float64, the pose the delta was computed under
     """
-    n = len(keys)
-    arrays = {"keys_diff": np.diff(np.asarray(keys, np.int64), prepend=np.int64(0)),
-              "T_world_cam": np.asarray(T_world_cam, np.float64)}
-    for name, arr in channels.items():
-        arr = np.asarray(arr)
-        rows = np.flatnonzero(arr.reshape(n, -1).any(axis=1)) if n else np.zeros(0, np.int64)
-        if 2 * len(rows) < n:
-            arrays[f"ch_{name}"] = _compact(arr.reshape(n, -1)[rows])
-            arrays[f"rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
-        else:
-            arrays[f"ch_{name}"] = _compact(arr)
+    arrays = {"T_world_cam": np.asarray(T_world_cam, np.float64)}
+    for i, (keys, channels) in enumerate(parts):
+        pre = _part_prefix(i)
+        arrays[f"{pre}keys_diff"] = np.diff(np.asarray(keys, np.int64), prepend=np.int64(0))
+        _encode_channels(arrays, pre, len(keys), channels)
     write_npz(path, arrays, compresslevel=DELTA_COMPRESSLEVEL)
 
 
-def read_delta(path: str | Path) -> tuple[np.ndarray, dict, np.ndarray]:
-    """Read a delta file: keys (n,) int64, channels dict name -> (n, width) int64, T_world_cam (4, 4)."""
+def read_delta(path: str | Path) -> tuple[list, np.ndarray]:
+    """Read a delta file: (parts, T_world_cam (4, 4)); parts a list of (keys (n,) int64, channels dict
+    name -> (n, width) int64), in the order they were written."""
     path = Path(path)
     if not path.is_file():
         raise PanovoccError("delta file missing (the map folder is incomplete)", path)
     try:
         with np.load(path, allow_pickle=False) as z:
-            keys = np.cumsum(z["keys_diff"].astype(np.int64))
-            ch = {}
-            for k in z.files:
-                if not k.startswith("ch_"):
-                    continue
-                vals = z[k].astype(np.int64)
-                if f"rows_{k[3:]}" in z.files:  # sparse rows (write_delta)
-                    rows = np.cumsum(z[f"rows_{k[3:]}"].astype(np.int64))
-                    full = np.zeros((len(keys), vals.shape[1] if vals.ndim == 2 else 1), np.int64)
-                    full[rows] = vals.reshape(len(rows), full.shape[1])
-                    ch[k[3:]] = full
-                else:
-                    ch[k[3:]] = vals if vals.ndim == 2 else vals.reshape(len(keys), -1)
+            parts = []
+            while f"{_part_prefix(len(parts))}keys_diff" in z.files:
+                pre = _part_prefix(len(parts))
+                keys = np.cumsum(z[f"{pre}keys_diff"].astype(np.int64))
+                parts.append((keys, _decode_channels(z, pre, len(keys))))
             T = np.asarray(z["T_world_cam"], np.float64)
     except Exception as e:  # noqa: BLE001 - any unreadable file is the same failure
         raise PanovoccError(f"cannot read delta ({type(e).__name__}: {e})", path) from None
     if T.shape != (4, 4):
         raise PanovoccError(f"delta pose has shape {T.shape}, expected (4, 4)", path)
-    return keys, ch, T
+    return parts, T
 
 
 def write_memory(folder: str | Path, arrays: Mapping[str, np.ndarray], frames_done: int, poses: np.ndarray,
@@ -121,12 +146,16 @@ def write_memory(folder: str | Path, arrays: Mapping[str, np.ndarray], frames_do
     frame_ids : (n,) int64 or None; stored only when the ids are not ``0..n-1`` (a mapper that removed
         frames or was fed its own ids), so a plain map run's file keeps its historical bytes
     """
-    out = dict(arrays)
+    out = {k: v for k, v in arrays.items() if not k.startswith("ch_")}
+    n = len(arrays["keys"])
+    _encode_channels(out, "", n, {k[3:]: v for k, v in arrays.items() if k.startswith("ch_")})
+    out["keys"] = np.diff(np.asarray(arrays["keys"], np.int64), prepend=np.int64(0))  # as differences
+    out["keys_are_diffs"] = np.int64(1)
     out["frames_done"] = np.int64(frames_done)
     out["poses"] = np.asarray(poses, np.float64).reshape(-1, 4, 4)
     if frame_ids is not None:
         out["frame_ids"] = np.asarray(frame_ids, np.int64)
-    write_npz(Path(folder) / MEMORY_NAME, out)
+    write_npz(Path(folder) / MEMORY_NAME, out, compresslevel=MEMORY_COMPRESSLEVEL)
 
 
 def read_memory(folder: str | Path) -> tuple[dict, int, np.ndarray, np.ndarray | None]:
@@ -137,7 +166,12 @@ def read_memory(folder: str | Path) -> tuple[dict, int, np.ndarray, np.ndarray |
                             "its first checkpoint)", path)
     try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+            arrays = {k: z[k] for k in z.files if not k.startswith(("ch_", "rows_"))}
+            keys = np.asarray(arrays["keys"], np.int64)
+            if int(arrays.pop("keys_are_diffs", 0)):  # older memory files store the keys themselves
+                keys = np.cumsum(keys)
+            arrays["keys"] = keys
+            arrays.update({f"ch_{k}": v for k, v in _decode_channels(z, "", len(keys)).items()})
         frames_done = int(arrays.pop("frames_done"))
         poses = np.asarray(arrays.pop("poses"), np.float64)
         ids = arrays.pop("frame_ids", None)

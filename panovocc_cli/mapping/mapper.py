@@ -14,8 +14,9 @@
 
 The mapper never opens an input file: a frame's arrays come in a :class:`~panovocc_cli.frame.Frame`, and
 a segmenter, if any, runs before (its logits travel in the frame). Each frame's delta is the geometry
-contributor's (:func:`.contributors.geometry_delta`: PSVF support, free space) merged with, when the
-frame carries logits and the configuration a vocabulary, the semantic one (:func:`.semantic.semantic_delta`).
+contributor's (:func:`.contributors.geometry_delta`: PSVF support, free space) and, when the frame
+carries logits and the configuration a vocabulary, the semantic one (:func:`.semantic.semantic_delta`),
+kept as two parts over their own voxels (:class:`~.memory.FrameDelta`).
 The deltas are kept by the reversible persistent update (:mod:`.rpu`), so the memory is always their exact
 integer sum.
 
@@ -52,7 +53,7 @@ from ..semantics.gsc import GSCParams
 from .contributors import geometry_delta
 from .export import MapExport, export_memory
 from .config import FORMAT_VERSION, mapper_gsc_params
-from .memory import GEOMETRY_CHANNELS, ChannelSpec, Delta, VoxelMemory, merge_deltas
+from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
 from .params import GeometryParams, OccupancyParams
 from .rpu import DeltaStore, ReversibleMemory
 from .semantic import semantic_channels, semantic_delta
@@ -136,22 +137,23 @@ def has_measurement(depth: np.ndarray) -> bool:
     return bool(np.any(np.asarray(depth) > 0))
 
 
-def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = None) -> Delta:
-    """One frame's delta: geometry, merged with semantics when the frame has logits and ``config`` a vocabulary.
+def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = None) -> FrameDelta:
+    """One frame's delta: the geometry's part, and the semantics' part when the frame has logits and
+    ``config`` a vocabulary (kept apart, each over its own voxels: :class:`~.memory.FrameDelta`).
 
     A frame without any valid depth (a dropped sensor frame, all zero) is an empty observation: an empty
     delta. ``rays`` : (H, W, 3) float64 unit rays of the frame's camera (cached by the caller).
     """
     g = config.geometry
     if not has_measurement(frame.depth):
-        return Delta(np.zeros(0, np.int64), {})
+        return FrameDelta(())
     parts = [geometry_delta(frame.depth, frame.T_world_cam, g)]
     if config.vocab and frame.logits is not None:
         if rays is None:
             rays = frame.camera.rays()
         parts.append(semantic_delta(frame.depth, frame.rgb, frame.logits, frame.T_world_cam, g.voxel_size,
                                     config.weights, g.min_range, g.max_range, rays))
-    return merge_deltas(parts)
+    return FrameDelta(tuple(parts))
 
 
 def _check_pose(T, what: str) -> np.ndarray:
@@ -217,7 +219,7 @@ class Mapper:
         return len(self._rpu.store)
 
     # -- frames ----------------------------------------------------------------------------------
-    def _delta(self, frame: Frame) -> Delta:
+    def _delta(self, frame: Frame) -> FrameDelta:
         frame.check()
         if self.config.vocab and frame.logits is not None and np.shape(frame.logits)[2] != len(self.config.vocab):
             raise PanovoccError(f"frame {frame.index}: logits have {np.shape(frame.logits)[2]} classes, the "

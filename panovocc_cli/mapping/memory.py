@@ -30,7 +30,7 @@ FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored /
 BLOCK = 8  # voxels per block edge
 BLOCK_VOXELS = BLOCK ** 3
 _EMPTY = np.int64(-1)
-INITIAL_BYTES = 64 * 2 ** 20  # initial block storage of a memory (grows by doubling)
+INITIAL_BYTES = 256 * 2 ** 20  # initial block storage of a memory (zeros: pages cost only once written; grows by doubling)
 
 
 @dataclass(frozen=True)
@@ -96,6 +96,34 @@ def _rows(values, n: int) -> np.ndarray:
     if n == 0 and a.size == 0:
         return a.reshape(0, a.shape[-1] if a.ndim == 2 else 1)
     return a.reshape(n, -1)
+
+
+@dataclass
+class FrameDelta:
+    """One frame's contribution as its contributors made it: one :class:`Delta` per contributor (the
+    geometry's, the semantics'), disjoint channel names, each over its own keys.
+
+    Kept apart, not merged over the union of their keys: the semantic channels (E is C wide) touch only
+    the voxels pixels fell in, a tenth of the geometry's free-space rows, so a merged delta would be
+    mostly zeros to allocate, add, scan and compress (:func:`merge_deltas` gives that single Delta).
+    """
+
+    parts: tuple
+
+    def __post_init__(self):
+        self.parts = tuple(p for p in self.parts if p is not None and len(p) and p.channels)
+        names = [name for p in self.parts for name in p.channels]
+        if len(set(names)) < len(names):
+            dup = next(n for n in names if names.count(n) > 1)
+            raise ValueError(f"channel {dup} produced by two contributors")
+
+    def __len__(self) -> int:
+        """Rows over all parts (0: the frame changes nothing)."""
+        return sum(len(p) for p in self.parts)
+
+    def merged(self) -> Delta:
+        """The same contribution as one Delta over the union of the parts' keys."""
+        return merge_deltas(self.parts)
 
 
 def merge_deltas(parts: Sequence[Delta]) -> Delta:
@@ -344,8 +372,13 @@ class VoxelMemory:
             raise ValueError(f"delta channel {name!r} has width {width}, memory expects {spec.width}")
         return np.arange(self.offsets[name], self.offsets[name] + width, dtype=np.int64)
 
-    def add(self, delta: Delta, sign: int = 1) -> None:
-        """Add (``sign=+1``) or subtract (``sign=-1``) a delta. Exact integer arithmetic."""
+    def add(self, delta: "Delta | FrameDelta", sign: int = 1) -> None:
+        """Add (``sign=+1``) or subtract (``sign=-1``) a delta (a :class:`FrameDelta`: each of its parts).
+        Exact integer arithmetic."""
+        if isinstance(delta, FrameDelta):
+            for part in delta.parts:
+                self.add(part, sign)
+            return
         if len(delta) == 0 or not delta.channels:
             return
         vals, cols = self._values(delta)

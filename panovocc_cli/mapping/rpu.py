@@ -3,8 +3,8 @@ kept, so any frame can be taken out again and put back under a new pose.
 
 Everything the method needs is here:
 
-* :class:`DeltaStore` keeps each frame's sparse :class:`~.memory.Delta` and the pose it was computed under,
-  in RAM (``folder=None``) or as files in ``folder/deltas/`` (written on a background thread);
+* :class:`DeltaStore` keeps each frame's sparse :class:`~.memory.FrameDelta` (one :class:`~.memory.Delta`
+  per contributor) and the pose it was computed under, in RAM (``folder=None``) or as files in ``folder/deltas/`` (written on a background thread);
 * :class:`ReversibleMemory` couples a :class:`~.memory.VoxelMemory` with a store: ``keep`` (add a frame),
   ``revise`` (subtract the kept delta, re-add the recomputed one), ``remove`` (subtract it, forget it),
   ``save`` / ``load`` (persist the memory and the deltas).
@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from ..io import mapstore
-from .memory import Delta, VoxelMemory
+from .memory import Delta, FrameDelta, VoxelMemory
 
 
 class _BackgroundWriter:
@@ -58,9 +58,14 @@ class _BackgroundWriter:
         self._pool.shutdown()
 
 
-def _compact_channels(delta: Delta) -> dict:
-    """A delta's channels in the smallest integer types (what a RAM store keeps; read back as int64)."""
-    return {name: mapstore._compact(arr) for name, arr in delta.channels.items()}
+def _as_frame_delta(delta: "Delta | FrameDelta") -> FrameDelta:
+    return delta if isinstance(delta, FrameDelta) else FrameDelta((delta,))
+
+
+def _compact_parts(delta: FrameDelta) -> list:
+    """A frame delta's parts with channels in the smallest integer types (what a RAM store keeps; read
+    back as int64)."""
+    return [(p.keys.copy(), {name: mapstore._compact(arr) for name, arr in p.channels.items()}) for p in delta.parts]
 
 
 class DeltaStore:
@@ -98,7 +103,7 @@ class DeltaStore:
         """Kept frame ids, ascending."""
         return sorted(self.poses)
 
-    def get(self, frame_id: int) -> Delta:
+    def get(self, frame_id: int) -> FrameDelta:
         """The kept delta of ``frame_id`` (int64 channels)."""
         fid = int(frame_id)
         if fid not in self.poses:
@@ -106,26 +111,26 @@ class DeltaStore:
         self.flush()
         return self._read(fid, self.folder, self._ram, self._staged)
 
-    def _read(self, fid: int, folder: Path | None, ram: dict, staged: dict) -> Delta:
+    def _read(self, fid: int, folder: Path | None, ram: dict, staged: dict) -> FrameDelta:
         if folder is None:
-            keys, ch = ram[fid]
-            return Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()})
+            return FrameDelta(tuple(Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()}) for keys, ch in ram[fid]))
         path = staged.get(fid, mapstore.delta_path(folder, fid))
-        keys, ch, T = mapstore.read_delta(path)
+        parts, T = mapstore.read_delta(path)
         if not np.array_equal(T, self.poses[fid]):
             raise PanovoccError(f"delta of frame {fid} was computed under another pose than memory.npz holds "
                                 "(the map folder was changed by another process)", path)
-        return Delta(keys, ch)
+        return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts))
 
     # -- changes ---------------------------------------------------------------------------------
-    def put(self, frame_id: int, delta: Delta, T_world_cam: np.ndarray) -> None:
+    def put(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
         """Keep ``delta`` (computed under ``T_world_cam`` (4, 4)) as frame ``frame_id``'s, replacing any."""
         fid = int(frame_id)
         T = np.array(T_world_cam, np.float64)
+        delta = _as_frame_delta(delta)
         self.poses[fid] = T
         self._doomed.discard(fid)
         if self.folder is None:
-            self._ram[fid] = (delta.keys.copy(), _compact_channels(delta))
+            self._ram[fid] = _compact_parts(delta)
             return
         path = mapstore.delta_path(self.folder, fid)
         if fid in self._committed:
@@ -133,7 +138,7 @@ class DeltaStore:
             self._staged[fid] = path
         if self._writer is None:
             self._writer = _BackgroundWriter()
-        self._writer.submit(mapstore.write_delta, path, delta.keys, delta.channels, T)
+        self._writer.submit(mapstore.write_delta, path, [(p.keys, p.channels) for p in delta.parts], T)
 
     def drop(self, frame_id: int) -> None:
         """Forget frame ``frame_id`` (a committed file is deleted at the next commit)."""
@@ -230,14 +235,14 @@ class ReversibleMemory:
         self.memory = memory
         self.store = store
 
-    def keep(self, frame_id: int, delta: Delta, T_world_cam: np.ndarray) -> None:
+    def keep(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
         """Add a new frame's delta (computed under ``T_world_cam``) to the memory and keep it."""
         if frame_id in self.store:
             raise PanovoccError(f"frame {frame_id} is already in the map (revise or remove it)")
         self.memory.add(delta, +1)
         self.store.put(frame_id, delta, T_world_cam)
 
-    def revise(self, frame_id: int, delta: Delta, T_world_cam: np.ndarray) -> None:
+    def revise(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
         """Subtract the kept delta of ``frame_id`` and add ``delta`` (recomputed under ``T_world_cam``)."""
         old = self.store.get(frame_id)
         self.memory.add(old, -1)
@@ -291,7 +296,7 @@ def settle_staged(folder: Path, committed: dict) -> None:
     for tmp in sorted((Path(folder) / mapstore.DELTAS_DIR).glob("*.npz" + mapstore.STAGED_SUFFIX)):
         try:
             fid = int(tmp.name.split(".")[0])
-            _, _, T = mapstore.read_delta(tmp)
+            _, T = mapstore.read_delta(tmp)
             ok = fid in committed and np.array_equal(T, committed[fid])
         except (PanovoccError, ValueError):
             ok = False

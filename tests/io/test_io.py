@@ -133,14 +133,47 @@ def test_delta_file_sparse_channel_rows_round_trip(tmp_path):
     sparse = np.zeros((n, 4), np.int64)
     sparse[[0, 5, n - 1]] = [[1, -2, 3, 70000], [0, 9, 0, 0], [-(2 ** 40), 0, 0, 1]]
     ch = {"sparse": sparse, "dense": np.arange(2 * n).reshape(n, 2), "zero": np.zeros((n, 1), np.int64)}
-    write_delta(tmp_path / "a.npz", keys, ch, np.eye(4))
+    write_delta(tmp_path / "a.npz", [(keys, ch)], np.eye(4))
     with np.load(tmp_path / "a.npz") as z:
         assert z["ch_sparse"].shape == (3, 4) and "rows_dense" not in z.files
-    k2, ch2, T = read_delta(tmp_path / "a.npz")
+    [(k2, ch2)], T = read_delta(tmp_path / "a.npz")
     assert np.array_equal(k2, keys) and np.array_equal(T, np.eye(4))
     for name, arr in ch.items():
         assert ch2[name].dtype == np.int64 and np.array_equal(ch2[name], arr)
-    write_delta(tmp_path / "b.npz", keys, ch, np.eye(4))
+    write_delta(tmp_path / "b.npz", [(keys, ch)], np.eye(4))
     assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
-    write_delta(tmp_path / "e.npz", keys[:0], {"sparse": sparse[:0]}, np.eye(4))
-    assert read_delta(tmp_path / "e.npz")[1]["sparse"].shape == (0, 4)
+    write_delta(tmp_path / "e.npz", [(keys[:0], {"sparse": sparse[:0]})], np.eye(4))
+    assert read_delta(tmp_path / "e.npz")[0][0][1]["sparse"].shape == (0, 4)
+    # two contributors' parts, each over its own keys, come back apart and in order
+    k_sem = keys[::7] + 1
+    sem = {"E": np.arange(3 * len(k_sem)).reshape(-1, 3) - 5}
+    write_delta(tmp_path / "p.npz", [(keys, ch), (k_sem, sem)], 2 * np.eye(4))
+    parts, T = read_delta(tmp_path / "p.npz")
+    assert len(parts) == 2 and np.array_equal(T, 2 * np.eye(4))
+    assert np.array_equal(parts[0][0], keys) and sorted(parts[0][1]) == sorted(ch)
+    assert np.array_equal(parts[1][0], k_sem) and np.array_equal(parts[1][1]["E"], sem["E"])
+
+
+def test_memory_file_round_trip_sparse_channels(tmp_path):
+    """memory.npz stores keys as differences and mostly-zero channels as their non-zero rows; read_memory
+    gives back the arrays VoxelMemory.to_arrays wrote, bit for bit."""
+    import numpy as np
+
+    from panovocc_cli.io.mapstore import read_memory, write_memory
+    from panovocc_cli.mapping.memory import ChannelSpec, Delta, VoxelMemory
+
+    mem = VoxelMemory(0.08, (ChannelSpec("A", 1, "fixed"), ChannelSpec("E", 3, "fixed")))
+    keys = np.arange(10, 40000, 11, dtype=np.int64)
+    E = np.zeros((len(keys), 3), np.int64)
+    E[::50] = [[1, 2 ** 40, -3]]
+    mem.add(Delta(keys, {"A": np.arange(len(keys)) + 1, "E": E}))
+    arrays = mem.to_arrays()
+    write_memory(tmp_path, arrays, 3, np.eye(4)[None].repeat(3, 0))
+    with np.load(tmp_path / "memory.npz") as z:
+        assert "rows_E" in z.files and z["ch_E"].shape[0] == len(keys[::50])
+    back, done, poses, ids = read_memory(tmp_path)
+    assert done == 3 and poses.shape == (3, 4, 4) and ids is None
+    for k, v in arrays.items():
+        assert np.array_equal(back[k], v), k
+        if k.startswith("ch_") or k == "keys":
+            assert back[k].dtype == np.int64
