@@ -26,7 +26,9 @@ class Frame:
     depth : (H, W) float32, metres, radial (distance along the pixel's ray), 0 = invalid
     T_world_cam : (4, 4) float64, camera-to-world pose (OpenCV camera axes, world +Z up)
     camera : ErpCamera, the camera model (its ``shape`` is (H, W))
-    logits : (H, W, C) float32 or None, per-pixel class scores over the mapper's vocabulary (C words)
+    logits : (H, W, C) float32 or None, per-pixel class scores over the mapper's vocabulary (C words); or
+        (ceil(H/s), ceil(W/s), C), the scores of pixels (s i, s j) at an integer stride s (a segmenter run
+        at the mapper's semantic stride, :func:`logits_stride`)
     index : int or None, the frame's identity (its position in the sequence); the mapper uses it as the
         frame id when given
     """
@@ -58,6 +60,21 @@ class Frame:
             raise PanovoccError(f"{what}: T_world_cam must be a finite (4, 4) matrix, got shape {T.shape}")
         if self.logits is not None:
             lg = np.asarray(self.logits)
-            if lg.ndim != 3 or lg.shape[:2] != hw:
-                raise PanovoccError(f"{what}: logits have shape {lg.shape}, expected {hw + ('C',)}")
+            if lg.ndim != 3 or not logits_stride(hw, lg.shape[:2]):
+                raise PanovoccError(f"{what}: logits have shape {lg.shape}, expected {hw + ('C',)} "
+                                    "(or that size at an integer pixel stride s: ceil(H/s), ceil(W/s))")
         return self
+
+
+def logits_stride(image_hw: tuple, logits_hw: tuple) -> int:
+    """The integer pixel stride s at which logits of size ``logits_hw`` sample an image of size
+    ``image_hw`` (rows and columns 0, s, 2s, ...: ``ceil(H / s), ceil(W / s)``); 0 when there is none."""
+    H, W = (int(x) for x in image_hw)
+    h, w = (int(x) for x in logits_hw)
+    if h < 1 or w < 1:
+        return 0
+    s = max(1, H // h)
+    for cand in (s, s + 1):  # ceil(H / s) == h pins s down to these two
+        if -(-H // cand) == h and -(-W // cand) == w:
+            return cand
+    return 0

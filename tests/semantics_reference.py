@@ -143,16 +143,21 @@ def frame_semantic_delta_numpy(depth: np.ndarray, rgb: np.ndarray, logits: np.nd
     """
     depth = np.asarray(depth, dtype=np.float64)
     h, w = depth.shape
-    if np.shape(rgb)[:2] != (h, w) or np.shape(logits)[:2] != (h, w):
+    s = weights.stride  # measurements: pixels (s i, s j), each weighing s^2
+    if np.shape(rgb)[:2] != (h, w) or np.shape(logits)[:2] not in ((h, w), (-(-h // s), -(-w // s))):
         raise PanovoccError(f"depth {depth.shape}, rgb {np.shape(rgb)[:2]} and logits {np.shape(logits)[:2]} "
                             "must have the same size")
     if rays is None:
         rays = ray_directions(w, h)
+    phi = latitudes(h)[::s]
+    if np.shape(logits)[:2] == (h, w):
+        logits = np.asarray(logits)[::s, ::s]
+    depth, rgb, rays = depth[::s, ::s], np.asarray(rgb)[::s, ::s], np.asarray(rays)[::s, ::s]
     pts_cam = rays * depth[..., None]
     valid = np.isfinite(depth) & (depth > 0)
     normals = erp_normals(pts_cam, valid)
     probs = softmax(logits)
-    eta = measurement_weights(probs, latitudes(h)[:, None], depth, weights)
+    eta = measurement_weights(probs, phi[:, None], depth, weights).astype(np.float64) * (s * s)
     R, t = np.asarray(T_world_cam[:3, :3], np.float64), np.asarray(T_world_cam[:3, 3], np.float64)
     sel = valid & (eta > 0)
     pw = pts_cam[sel] @ R.T + t

@@ -26,6 +26,7 @@ import numpy as np
 from ..classes import canonical_name
 from ..config import PROB_TOL
 from ..errors import PanovoccError
+from ..frame import logits_stride
 from .atomic import write_text
 from .images import read_image, write_png
 from .jsonfile import read_json
@@ -59,8 +60,17 @@ def read_vocab_json(folder: str | Path) -> list[str]:
     return canon
 
 
+def _stride_to(stored_hw: tuple, shape: tuple | None) -> int:
+    """1 when the stored scores have the frame's size (or no size is asked), the pixel stride s when the
+    frame was given at a stride (the map's semantic stride: scores of pixels (s i, s j) are taken), else 0."""
+    if shape is None or tuple(stored_hw) == tuple(shape):
+        return 1
+    return logits_stride(stored_hw, shape)
+
+
 def read_frame_scores(folder: str | Path, stem: str, n_classes: int, shape: tuple[int, int] | None) -> FrameScores:
-    """One frame's scores as stored, validated against ``n_classes`` and the frame ``shape`` ``(H, W)``.
+    """One frame's scores as stored, validated against ``n_classes`` and the frame ``shape`` ``(H, W)``
+    (stored at full size for a ``shape`` that samples it at an integer stride: those pixels' scores).
 
     Returns a :class:`FrameScores`: ``kind`` ``"logits"`` or ``"probs"`` with ``array`` (H, W, C) float32,
     or ``kind`` ``"labels"`` with ``array`` (H, W) int64 ids, ``confidence`` (H, W) float32 in [0, 1]
@@ -85,8 +95,10 @@ def read_frame_scores(folder: str | Path, stem: str, n_classes: int, shape: tupl
             raise PanovoccError(f"'{key}' must be float16/float32, got {a.dtype}", npz)
         if a.ndim != 3:
             raise PanovoccError(f"'{key}' must be (H, W, C), got shape {a.shape}", npz)
-        if shape is not None and a.shape[:2] != tuple(shape):
+        s = _stride_to(a.shape[:2], shape)
+        if not s:
             raise PanovoccError(f"'{key}' is {a.shape[1]}x{a.shape[0]}, the frame is {shape[1]}x{shape[0]}", npz)
+        a = a[::s, ::s]
         if a.shape[2] != n_classes:
             raise PanovoccError(f"'{key}' has {a.shape[2]} classes, vocab.json has {n_classes}", npz)
         a = a.astype(np.float32)
@@ -100,7 +112,8 @@ def read_frame_scores(folder: str | Path, stem: str, n_classes: int, shape: tupl
         raw = read_image(png, "unchanged")
         if raw.ndim != 2 or raw.dtype not in (np.uint8, np.uint16):
             raise PanovoccError(f"label image must be single-channel uint8/uint16, got {raw.dtype} {raw.shape}", png)
-        if shape is not None and raw.shape != tuple(shape):
+        s = _stride_to(raw.shape, shape)
+        if not s:
             raise PanovoccError(f"labels are {raw.shape[1]}x{raw.shape[0]}, the frame is {shape[1]}x{shape[0]}", png)
         lab = raw.astype(np.int64)
         none_id = int(np.iinfo(raw.dtype).max)
@@ -116,7 +129,7 @@ def read_frame_scores(folder: str | Path, stem: str, n_classes: int, shape: tupl
             c = conf.astype(np.float32) / 255.0
         else:
             c = np.full(lab.shape, DEFAULT_LABEL_CONFIDENCE, dtype=np.float32)
-        return FrameScores("labels", lab, c, none_id)
+        return FrameScores("labels", lab[::s, ::s], c[::s, ::s], none_id)
     raise PanovoccError(f"frame {stem} not found (expected {stem}.npz or {stem}.png)", folder)
 
 

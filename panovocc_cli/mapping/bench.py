@@ -159,17 +159,15 @@ def panovocc_update_pass(depths, poses, geo):
     return run
 
 
-def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int):
+def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int, weights):
     """A callable that runs the semantic update (:func:`.semantic.semantic_delta` from the given logits,
     then :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
-    (one warm-up pass first)."""
+    (one warm-up pass first). ``weights``: the map command's resolved EvidenceWeights (its stride)."""
     from ..geometry.erp import ray_directions
-    from ..semantics.evidence import EvidenceWeights
     from .memory import VoxelMemory
     from .semantic import semantic_channels, semantic_delta
 
     rays = ray_directions(depths[0].shape[1])
-    weights = EvidenceWeights()
 
     def run():
         mem = VoxelMemory(geo.voxel_size, semantic_channels(vocab_size))
@@ -183,8 +181,8 @@ def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int):
 
 
 def segmenter_pass(segmenter, rgbs, vocab):
-    """A callable that runs ``segmenter.logits`` on every frame (frame ids 0..n-1) and returns ms per
-    frame (one warm-up call first)."""
+    """A callable that runs ``segmenter.logits`` on every frame (frame ids 0..n-1; the images as the map
+    command gives them, i.e. at its semantic stride) and returns ms per frame (one warm-up call first)."""
     segmenter.logits(rgbs[0], vocab, frame_id=0)
 
     def run():
@@ -248,16 +246,19 @@ def run_bench(cfg: BenchConfig) -> dict:
     depths = [seq.depth(i) for i in range(n)]
     rgbs = [seq.rgb(i) for i in range(n)]
     geo = GeometryParams(voxel_size=cfg.voxel_size)
-    geo = resolve(MapConfig(seq=str(seq_dir), out=str(out / "map"), geometry=geo), cfg.width).geometry
+    resolved = resolve(MapConfig(seq=str(seq_dir), out=str(out / "map"), geometry=geo), cfg.width)
+    geo, weights = resolved.geometry, resolved.semantic.weights  # as `panovocc map` resolves them
+    s = weights.stride
     vocab = parse_vocab(None)
     seg = build_segmenter("simulated", seed=cfg.seed, label_source=sequence_label_source(seq))
     labels = [seq.labels(i) for i in range(n)]
     seg.label_source = lambda i, names=list(seq.meta.class_names): (labels[i], names)  # in memory: no PNG reads
-    logits = [seg.logits(c, vocab, frame_id=i) for i, c in enumerate(rgbs)]
+    seg_rgbs = [c[::s, ::s] for c in rgbs]  # the segmenter sees the map's measurement pixels
+    logits = [seg.logits(c, vocab, frame_id=i) for i, c in enumerate(seg_rgbs)]
 
     geo_pass = panovocc_update_pass(depths, seq.poses, geo)  # also compiles / loads the numba caches
-    sem_pass = semantic_update_pass(depths, rgbs, logits, seq.poses, geo, len(vocab))
-    seg_pass = segmenter_pass(seg, rgbs, vocab)
+    sem_pass = semantic_update_pass(depths, rgbs, logits, seq.poses, geo, len(vocab), weights)
+    seg_pass = segmenter_pass(seg, seg_rgbs, vocab)
     o3d_pass = open3d_tsdf_pass(depths, seq.poses, cfg.voxel_size, geo.max_range)
     del logits
     passes = {"geometry": [], "semantics": [], "segmenter": [], "open3d": []}
@@ -286,7 +287,7 @@ def run_bench(cfg: BenchConfig) -> dict:
     r_sem_geo = ms["semantics"] / ms["geometry"]
     r_e2e = sec["map_semantics"] / sec["open3d"]
     r_e2e_geo = sec["map_geometry"] / sec["open3d"]
-    res = {"config": asdict(cfg), "stride": geo.stride, "frames": n,
+    res = {"config": asdict(cfg), "stride": geo.stride, "semantic_stride": s, "frames": n,
            "statistic": f"median over {cfg.repeats} interleaved passes (ms/frame) and {cfg.process_repeats} "
                         "interleaved whole-process runs (s)",
            "update_ms_per_frame": ms, "update_passes_ms": passes,
@@ -300,7 +301,7 @@ def run_bench(cfg: BenchConfig) -> dict:
     lines = [
         f"{n} frames {cfg.width}x{cfg.width // 2} (synth seed {cfg.seed}), update only, ms/frame "
         f"(median of {cfg.repeats} interleaved passes):",
-        f"  geometric update {ms['geometry']:.1f} | semantic update {ms['semantics']:.1f} "
+        f"  geometric update {ms['geometry']:.1f} | semantic update (stride {s}) {ms['semantics']:.1f} "
         f"(ratio semantic/geometric {r_sem_geo:.2f}) | simulated segmenter {ms['segmenter']:.1f} | "
         f"Open3D VoxelBlockGrid TSDF integrate (6 cube faces) {ms['open3d']:.1f}",
         f"whole process, s (median of {cfg.process_repeats} interleaved runs):",

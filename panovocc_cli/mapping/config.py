@@ -104,7 +104,8 @@ class SegevalConfig:
 class MapConfig:
     """Everything ``panovocc map`` needs; saved resolved as ``OUT/config.json``.
 
-    The run's own fields (``seq``, ``out``, ``poses``, ``checkpoint_every``, ``stride`` as requested, the
+    The run's own fields (``seq``, ``out``, ``poses``, ``checkpoint_every``, ``stride`` and
+    ``semantic_stride`` as requested, the
     segmenter spec, noise and seed and ``ply_color`` in ``semantic``) sit beside the mapper's parameters
     (``geometry``, ``occupancy``, the rest of ``semantic``): :meth:`mapper_config`.
     """
@@ -121,6 +122,11 @@ class MapConfig:
     # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
     stride: int = option(0, min=0, max=MAX_STRIDE,
                          help="Pixel stride s of the kernel lift; 0 = auto, max(1, W // 256) (4 at 1024).")
+    # requested semantic stride; 0 = auto (max(1, W // 512)); the resolved one is semantic.weights.stride
+    semantic_stride: int = option(0, min=0, max=MAX_STRIDE,
+                                  help="Pixel stride of the semantic measurements (every s-th row and column, "
+                                       "each weighing s^2; the segmenter runs at that resolution); 0 = auto, "
+                                       "max(1, W // 512) (2 at 1024).")
     # segmenter, vocabulary, GSC; the default "auto" = simulated when the sequence has labels, else none
     semantic: SemanticParams = field(default_factory=SemanticParams)
 
@@ -143,7 +149,8 @@ class MapConfig:
             s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
-                       stride=int(d.get("stride", 0)), semantic=s)
+                       stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
+                       semantic=s)
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
 

@@ -62,6 +62,12 @@ def auto_stride(width: int) -> int:
     return max(1, width // 256)
 
 
+def auto_semantic_stride(width: int) -> int:
+    """Default semantic stride for an ERP ``width``: 512 measurements around the panorama (2 at 1024;
+    docs/semantics.md, "Semantic stride", has the measurement behind it)."""
+    return max(1, width // 512)
+
+
 # ---------------------------------------------------------------------------------------------
 # frames: the sequence reader and the segmenter
 
@@ -78,10 +84,13 @@ class SequenceFrames:
     seq : Sequence
     segmenter : semantics.segmenter.Segmenter or None (geometry only)
     vocab : list of str, the run's vocabulary (the logits' C classes)
+    stride : int, the semantic stride s: the segmenter sees the image at pixels (s i, s j) and its logits
+        are those pixels' (the mapper measures only there)
     """
 
-    def __init__(self, seq: Sequence, segmenter=None, vocab=()):
+    def __init__(self, seq: Sequence, segmenter=None, vocab=(), stride: int = 1):
         self.seq = seq
+        self.stride = int(stride)
         self.segmenter = segmenter
         self.vocab = list(vocab)
         self.segmenter_seconds = 0.0  # time spent in the segmenter (run summaries)
@@ -90,7 +99,8 @@ class SequenceFrames:
         frame = self.seq.frame(i)
         if self.segmenter is not None:  # no ground truth in the call: frame_id = the frame's index
             t0 = time.perf_counter()
-            frame.logits = self.segmenter.logits(frame.rgb, self.vocab, frame_id=i)
+            s = self.stride
+            frame.logits = self.segmenter.logits(frame.rgb[::s, ::s] if s > 1 else frame.rgb, self.vocab, frame_id=i)
             self.segmenter_seconds += time.perf_counter() - t0
         return frame
 
@@ -105,7 +115,46 @@ def sequence_frames(cfg: MapConfig, seq: Sequence) -> SequenceFrames:
     s = cfg.semantic
     labels = sequence_label_source(seq) if seq.has_labels else None  # the simulator's ground truth
     seg = build_segmenter(s.segmenter, seed=int(s.seed), noise=float(s.noise), label_source=labels)
-    return SequenceFrames(seq, seg, s.vocab)
+    return SequenceFrames(seq, seg, s.vocab, stride=int(s.weights.stride))
+
+
+def concurrent_kernels_safe() -> bool:
+    """Whether numba's parallel kernels may be launched from two threads at once: true for the OpenMP and
+    TBB threading layers, false for workqueue (which aborts the process on concurrent launches) or before
+    any parallel kernel has run (no layer chosen yet)."""
+    import numba
+
+    try:
+        return numba.threading_layer() in ("omp", "tbb")
+    except ValueError:  # no parallel kernel has run yet
+        return False
+
+
+def prefetched(frames, indices):
+    """``(i, frames(i))`` for ``i`` in ``indices``, reading and segmenting frame ``i + 1`` on a second
+    thread while the caller integrates frame ``i`` (PNG decoding and zlib release the GIL, the kernels
+    run in parallel). The frames are the same objects, in the same order, as a plain loop would give:
+    the segmenters are seeded per frame. The first frame is read on the calling thread; the prefetching
+    starts only once :func:`concurrent_kernels_safe` says so, else the loop stays sequential."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    indices = list(indices)
+    if not indices:
+        return
+    pool = None
+    pending = None
+    try:
+        for k, i in enumerate(indices):
+            frame = pending.result() if pending is not None else frames(i)
+            pending = None
+            if k + 1 < len(indices) and (pool is not None or (k > 0 and concurrent_kernels_safe())):
+                if pool is None:
+                    pool = ThreadPoolExecutor(max_workers=1)
+                pending = pool.submit(frames, indices[k + 1])
+            yield i, frame
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def write_exports(out: Path, mapper: Mapper, ply_color: str) -> dict:
@@ -137,9 +186,12 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
     cfg = validate_config(cfg)  # the ranges declared on the fields (config.py option)
     g = cfg.geometry
     stride = cfg.stride if cfg.stride > 0 else auto_stride(width)
+    sem_stride = cfg.semantic_stride if cfg.semantic_stride > 0 else auto_semantic_stride(width)
     if not (np.isfinite(g.max_range) and g.max_range > g.min_range):  # across two fields: not a declared range
         raise PanovoccError(f"--max-range must be a distance in metres above min_range {g.min_range}, got {g.max_range}")
+    weights = dataclasses.replace(cfg.semantic.weights, stride=sem_stride)
     cfg = dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride),
+                              semantic=dataclasses.replace(cfg.semantic, weights=weights),
                               seq=str(Path(cfg.seq).resolve()), out=str(Path(cfg.out).resolve()),
                               poses=None if cfg.poses is None else str(Path(cfg.poses).resolve()))
     MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy).check()
@@ -278,14 +330,13 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
 
     t0 = time.perf_counter()
     t_compute = 0.0
-    bar = tqdm(range(start, end), desc="map", unit="frame", file=sys.stderr, disable=not progress,
-               initial=start, total=n)
+    bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
     try:
-        for i in bar:
-            frame = frames(i)
+        for i, frame in prefetched(frames, range(start, end)):
             tc = time.perf_counter()
             mapper.integrate(frame)
             t_compute += time.perf_counter() - tc
+            bar.update(1)
             done = i + 1
             if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
                 mapper.save(out)  # waits for the pending delta write: a checkpoint covers deltas on disk only

@@ -88,10 +88,11 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
     ----------
     depth : (H, W) float, metres, radial, 0 = invalid
     rgb : (H, W, 3) uint8
-    logits : (H, W, C) float, segmenter output over the vocabulary
+    logits : (H, W, C) float, segmenter output over the vocabulary; or (ceil(H/s), ceil(W/s), C) at the
+        semantic stride ``s = weights.stride`` (the logits of pixels (s i, s j))
     T_world_cam : (4, 4) float64, camera-to-world pose
     voxel_size : float, metres
-    weights : EvidenceWeights
+    weights : EvidenceWeights (``stride``: which pixels are measurements, and their weight stride^2)
     rays : (H, W, 3) float, optional precomputed :func:`geometry.erp.ray_directions`
 
     Returns
@@ -101,23 +102,32 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
     from ..geometry.erp import latitudes, ray_directions
     from ..geometry.lattice import KEY_RANGE
 
-    depth = np.ascontiguousarray(depth, dtype=np.float64)
+    depth = np.asarray(depth)
     if depth.ndim != 2:
         raise PanovoccError(f"depth must be (H, W), got shape {depth.shape}")
-    h, w = depth.shape
-    if np.shape(rgb)[:2] != (h, w) or np.shape(logits)[:2] != (h, w) or np.ndim(logits) != 3:
+    H, W = depth.shape
+    s = int(weights.stride)
+    if s < 1:
+        raise PanovoccError(f"semantic stride must be >= 1, got {s}")
+    h, w = -(-H // s), -(-W // s)  # the measurement grid: rows and columns 0, s, 2s, ...
+    if np.shape(rgb)[:2] != (H, W) or np.ndim(logits) != 3 or np.shape(logits)[:2] not in ((H, W), (h, w)):
         raise PanovoccError(f"depth {depth.shape}, rgb {np.shape(rgb)[:2]} and logits {np.shape(logits)[:2]} "
-                            "must have the same size")
+                            f"must have the same size (logits may also be at the semantic stride {s}: {(h, w)})")
     if voxel_size <= 0:
         raise PanovoccError(f"voxel size must be positive, got {voxel_size}")
     if rays is None:
-        rays = ray_directions(w, h)
+        rays = ray_directions(W, H)
+    if s > 1:
+        depth, rgb, rays = depth[::s, ::s], np.asarray(rgb)[::s, ::s], np.asarray(rays)[::s, ::s]
+        if np.shape(logits)[:2] == (H, W):
+            logits = np.asarray(logits)[::s, ::s]
+    depth = np.ascontiguousarray(depth, dtype=np.float64)
     rays = np.ascontiguousarray(rays, dtype=np.float64)
     logits = np.ascontiguousarray(logits, dtype=np.float32)
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     T = np.asarray(T_world_cam, np.float64)
     R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
-    werp = w_erp(latitudes(h), weights.erp_power, weights.erp_floor).astype(np.float64)
+    werp = w_erp(latitudes(H)[::s], weights.erp_power, weights.erp_floor).astype(np.float64)
     nch = min(N_CHUNKS, h)
     lid = np.empty(h * w, np.int32)
     ckeys = np.empty(h * w, np.int64)
@@ -127,7 +137,7 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
         raise PanovoccError(f"voxel index out of the lattice's range (|index| < {KEY_RANGE})")
     E, S, rgb_sum, normal_sum, count, allkeys = _chunk_sums(depth, rays, logits, rgb, werp,
                                                             float(weights.range_scale), R, 0.1, nch, lid, ckeys,
-                                                            nvox)
+                                                            nvox, float(s * s))
     order = np.argsort(allkeys, kind="stable")  # same key: chunks stay in chunk order
     uk, E, S, rgb_sum, normal_sum, count = _merge_chunks(allkeys, order, E, S, rgb_sum, normal_sum, count)
     if (count == 0).any():  # voxels whose every pixel had eta = 0 (float32 underflow at absurd ranges)
@@ -388,13 +398,14 @@ def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
 
 
 @nb.njit(cache=True, parallel=True)
-def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, lid, ckeys, nvox):
+def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, lid, ckeys, nvox, area):
     """Pass 2, over the same row chunks in parallel: each chunk's per-voxel sums over its pixels in pixel
     order (float64): E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3) float64, count (n,) int64 and the
     keys (n,), chunk after chunk (``n = nvox.sum()``; a voxel seen by several chunks has a row in each).
 
     Per pixel, the same expressions as the numpy chain: ``softmax`` (float32), ``eta = float32(c w_erp
-    w_range)``, the ``erp_normals`` normal (float64, cast to float32) rotated to the world frame.
+    w_range) * area`` (``area`` = stride^2, exactly 1 at stride 1), the ``erp_normals`` normal (float64,
+    cast to float32) rotated to the world frame.
     """
     H, W = depth.shape
     C = logits.shape[2]
@@ -441,7 +452,7 @@ def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, l
                     continue
                 d = depth[v, u]
                 wr = 1.0 / (1.0 + (d / range_scale) ** 2)
-                et = np.float64(np.float32(np.float64(cmax[u]) * werp[v] * wr))
+                et = np.float64(np.float32(np.float64(cmax[u]) * werp[v] * wr)) * area
                 if not et > 0:
                     continue
                 i = o + q

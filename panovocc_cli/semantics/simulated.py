@@ -56,6 +56,7 @@ import numpy as np
 from ..classes import canonical_name
 from ..config import DEFAULT_SEED
 from ..errors import PanovoccError
+from ..frame import logits_stride
 from ..geometry.erp import latitudes
 from .segmenter import Segmenter
 from .similarity import is_known, similarity
@@ -184,7 +185,10 @@ class SimulatedSegmenter(Segmenter):
         labels, class_names = self.label_source(frame_id)
         labels = np.asarray(labels)
         if rgb is not None and tuple(np.shape(rgb)[:2]) != labels.shape:
-            raise PanovoccError(f"frame {frame_id}: labels {labels.shape} and rgb {np.shape(rgb)[:2]} differ")
+            s = logits_stride(labels.shape, np.shape(rgb)[:2])  # an image given at a pixel stride (the map's
+            if not s:                                            # semantic stride): the labels of those pixels
+                raise PanovoccError(f"frame {frame_id}: labels {labels.shape} and rgb {np.shape(rgb)[:2]} differ")
+            labels = labels[::s, ::s]
         return simulate_logits(labels, class_names, vocab, int(frame_id), self.config)
 
 

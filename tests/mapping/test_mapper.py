@@ -1,6 +1,8 @@
 """The streaming Mapper: exactly `panovocc map` frame by frame; revise during a run, remove and save/load
 are exact (bit-identical memory); an empty depth frame is an empty observation."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from semantics_helpers import circle_poses, write_labelled_room
@@ -269,3 +271,33 @@ def test_checkpoint_of_the_earlier_form_still_loads(mapped, tmp_path):
         back.integrate(frames(i))
         m.integrate(frames(i))
     _assert_same_memory(back, m)
+
+
+def test_semantic_stride_run_api_and_revise_exact(seq_dir, tmp_path):
+    """`map --semantic-stride 2`: the segmenter sees every 2nd pixel, the config records the stride, the
+    API fed the same frames gives the same memory, full-size logits give the same delta as logits at the
+    stride, and a revision is still exact."""
+    out = tmp_path / "s2"
+    run_map(MapConfig(seq=str(seq_dir), out=str(out), checkpoint_every=0, semantic_stride=2), progress=False)
+    cfg = load_config(out)
+    assert cfg.semantic_stride == 2 and cfg.semantic.weights.stride == 2
+    frames = sequence_frames(cfg, Sequence(seq_dir))
+    assert frames(0).logits.shape == (W // 4, W // 2, 12)
+    loaded = Mapper.load(out)
+    assert loaded.config.weights.stride == 2
+    api = Mapper(cfg.mapper_config())
+    for i in range(N):
+        api.integrate(frames(i))
+    _assert_same_memory(api, loaded)
+    f = frames(1)
+    full = np.repeat(np.repeat(f.logits, 2, axis=0), 2, axis=1)  # full size; its pixels (2i, 2j) = f.logits
+    a, b = Mapper(cfg.mapper_config()), Mapper(cfg.mapper_config())
+    a.integrate(f)
+    b.integrate(dataclasses.replace(f, logits=full))
+    _assert_same_memory(a, b)
+    T = _moved(frames(3).T_world_cam, 11)
+    api.revise(3, T)
+    ref = Mapper(cfg.mapper_config())
+    for i in range(N):
+        ref.integrate(dataclasses.replace(frames(i), T_world_cam=T) if i == 3 else frames(i))
+    _assert_same_memory(api, ref)

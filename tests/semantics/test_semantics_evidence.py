@@ -172,8 +172,10 @@ def test_subtracting_a_delta_undoes_it():
     np.testing.assert_allclose(np.delete(S, pos1), 0.0, atol=1e-9)
 
 
-@pytest.mark.parametrize("width,yaw,voxel", [(256, 0.3, 0.2), (512, 1.1, 0.08), (40, 0.5, 0.3)])
-def test_compiled_delta_matches_numpy_reference(width, yaw, voxel):
+@pytest.mark.parametrize("width,yaw,voxel,stride,strided_logits", [(256, 0.3, 0.2, 1, False), (512, 1.1, 0.08, 1, False),
+                                                                  (40, 0.5, 0.3, 1, False), (256, 0.7, 0.1, 2, False),
+                                                                  (250, 0.2, 0.1, 3, True)])
+def test_compiled_delta_matches_numpy_reference(width, yaw, voxel, stride, strided_logits):
     """The compiled per-frame delta = the plain-numpy chain (tests/semantics_reference.py).
 
     Keys, counts and colour sums are identical; the float sums agree to ~1e-6 relative. The differences:
@@ -181,7 +183,9 @@ def test_compiled_delta_matches_numpy_reference(width, yaw, voxel):
     normalisation by a reciprocal (1 ulp), and the summation order of a voxel whose pixels fall in
     several of the fixed row chunks (chunk partial sums added in chunk order). After quantisation
     (2^-16) E, S and the normal sums agree to within one unit (the normal sums are identical on these
-    frames). Width 40 (20 rows) has fewer rows than chunks.
+    frames). Width 40 (20 rows) has fewer rows than chunks. With a semantic stride s the measurements are
+    pixels (s i, s j) weighing s^2, from full-size logits or logits given at the stride (width 250 with
+    s = 3: 84 x 42 measurements, the last row and column partial).
     """
     from panovocc_cli.mapping.semantic import quantize_semantic_delta
 
@@ -191,8 +195,13 @@ def test_compiled_delta_matches_numpy_reference(width, yaw, voxel):
     depth[::7, ::5] = 0.0  # holes: one-sided normals
     depth[3, :] = np.nan
     logits = simulate_logits(lab, CLASS_NAMES, VOCAB + ["pillow"], 4, SimulatedConfig(seed=3))
-    k1, c1 = frame_semantic_delta(depth, rgb, logits, T, voxel)
-    k0, c0 = frame_semantic_delta_numpy(np.nan_to_num(depth, nan=0.0), rgb, logits, T, voxel)
+    if strided_logits:
+        logits = logits[::stride, ::stride]
+    w = EvidenceWeights(stride=stride)
+    k1, c1 = frame_semantic_delta(depth, rgb, logits, T, voxel, w)
+    k0, c0 = frame_semantic_delta_numpy(np.nan_to_num(depth, nan=0.0), rgb, logits, T, voxel, w)
+    if stride > 1:  # the measurements are the strided pixels only
+        assert c1["count"].sum() == np.count_nonzero(np.nan_to_num(depth, nan=0.0)[::stride, ::stride] > 0)
     assert np.array_equal(k0, k1)
     for name in ("rgb_sum", "count"):
         assert np.array_equal(c0[name], c1[name])

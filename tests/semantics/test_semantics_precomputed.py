@@ -152,3 +152,31 @@ def test_corrupt_npz(tmp_path):
     (tmp_path / "000000.npz").write_bytes(b"not a zip")
     with pytest.raises(PanovoccError, match="cannot read"):
         PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, frame_id=0)
+
+
+def test_frame_given_at_a_pixel_stride(tmp_path):
+    """The map command hands a segmenter the image at its semantic stride (pixels (s i, s j)): stored
+    full-size scores then give those pixels' scores; sizes that no stride explains are refused."""
+    L = random_logits(4)
+    write_precomputed(tmp_path, 0, L, FILE_VOCAB, dtype=np.float32)
+    lab = np.random.default_rng(5).integers(0, 4, (H, W))
+    write_precomputed_labels(tmp_path, 1, lab, FILE_VOCAB)
+    seg = PrecomputedSegmenter(tmp_path)
+    full = seg.logits(RGB, FILE_VOCAB, frame_id=0)
+    half = seg.logits(RGB[::2, ::2], FILE_VOCAB, frame_id=0)
+    assert half.shape == (H // 2, W // 2, 4)
+    np.testing.assert_array_equal(half, full[::2, ::2])
+    third = seg.logits(RGB[::3, ::3], FILE_VOCAB, frame_id=1)  # 3 x 6 of the 8 x 16 labels
+    np.testing.assert_array_equal(third, seg.logits(RGB, FILE_VOCAB, frame_id=1)[::3, ::3])
+    with pytest.raises(PanovoccError, match="the frame is 5x3"):
+        seg.logits(np.zeros((3, 5, 3), np.uint8), FILE_VOCAB, frame_id=0)
+
+
+def test_logits_stride_rule():
+    from panovocc_cli.frame import logits_stride
+
+    assert logits_stride((512, 1024), (512, 1024)) == 1
+    assert logits_stride((512, 1024), (256, 512)) == 2
+    assert logits_stride((10, 20), (4, 7)) == 3  # ceil(10/3), ceil(20/3)
+    assert logits_stride((10, 20), (4, 8)) == 0  # no single stride gives both
+    assert logits_stride((512, 1024), (0, 0)) == 0

@@ -237,3 +237,17 @@ def test_segeval_class_errors(tmp_path):
         run_segeval(SegevalConfig(seq=str(tmp_path), classes="eval99"), progress=False)
     res, _ = run_segeval(SegevalConfig(seq=str(tmp_path), classes="all", noise=0), progress=False)
     assert set(res.classes) == {canonical_name(c) for c in CLASS_NAMES[1:]} and np.isfinite(res.miou)
+
+
+def test_simulated_segmenter_at_a_pixel_stride():
+    """Given the image at a pixel stride (the map's semantic stride), the simulator answers for those
+    pixels: the same as simulating the strided labels; a size no stride explains is refused."""
+    from panovocc_cli.errors import PanovoccError
+    from panovocc_cli.semantics.simulated import SimulatedSegmenter
+
+    lab = np.random.default_rng(0).integers(0, len(CLASS_NAMES), (32, 64))
+    seg = SimulatedSegmenter(lambda i: (lab, CLASS_NAMES))
+    out = seg.logits(np.zeros((16, 32, 3), np.uint8), VOCAB, frame_id=2)
+    np.testing.assert_array_equal(out, simulate_logits(lab[::2, ::2], CLASS_NAMES, VOCAB, 2, seg.config))
+    with pytest.raises(PanovoccError, match="differ"):
+        seg.logits(np.zeros((15, 32, 3), np.uint8), VOCAB, frame_id=2)
