@@ -291,14 +291,15 @@ def simulate_logits_numpy(labels: np.ndarray, class_names: Sequence[str], vocab:
                                                 * weight[ok]).astype(np.float32)
 
     # Eroded boundaries: near a label boundary, the neighbouring region's class bleeds in.
-    radius = max(1, int(round(cfg.boundary_deg / 180.0 * h)))
+    radius_f = cfg.boundary_deg / 180.0 * h  # the band's width in pixels of this image
+    radius = max(1, int(np.floor(radius_f + 0.5)))
     nb, dist = boundary_neighbours(labels, radius)
     rows, cols = np.nonzero(nb > 0)
     if rows.size:
         tgt = top[nb[rows, cols]]
         ok = tgt >= 0
         rows, cols, tgt = rows[ok], cols[ok], tgt[ok]
-        decay = 1.0 - (dist[rows, cols] - 1) / radius
+        decay = np.maximum(0.0, 1.0 - (dist[rows, cols] - 0.5) / radius_f)  # pixel centre's distance
         mod = np.exp(0.4 * fields[rows, cols, c])  # log-normal, median 1: erosion varies along the edge
         logits[rows, cols, tgt] += (cfg.boundary_logit * min(cfg.noise, 3.0) * decay * mod).astype(np.float32)
 

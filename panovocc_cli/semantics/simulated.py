@@ -23,7 +23,9 @@ Model of the logits ``L (H, W, C)`` of a pixel whose ground-truth class is ``g``
 * **latitude**: all noise is multiplied by ``1 + pole_gain |sin(phi)|^pole_power``, so errors grow
   toward the ERP poles;
 * **eroded boundaries**: pixels within ``boundary_deg`` of a label boundary get up to ``boundary_logit``
-  for the neighbouring region's class, decaying with distance and modulated along the boundary;
+  for the neighbouring region's class, decaying linearly with the distance of the pixel's centre from the
+  boundary (in degrees, so an image at half the resolution is eroded over the same angle, by the same
+  amount) and modulated along the boundary;
 * **confidence** (:class:`ConfidenceModel`): the logits are divided by a temperature
   ``T = temperature * exp(jitter * z)``, ``z ~ N(0, 1)`` drawn from the frame's seeded generator, so a
   frame is sometimes sharper, sometimes flatter, as a network's outputs are from image to image. The
@@ -256,8 +258,9 @@ def simulate_logits(labels: np.ndarray, class_names: Sequence[str], vocab: Seque
         _add_blob(logits, labels32, partner, lat, float(lat.max()), v0, u0, ra, rb_u, cfg.blob_logit * cfg.noise)
 
     # Eroded boundaries: near a label boundary, the neighbouring region's class bleeds in.
-    radius = max(1, int(round(cfg.boundary_deg / 180.0 * h)))
-    _erode_boundaries(logits, labels32, top, last_field, radius, cfg.boundary_logit * min(cfg.noise, 3.0))
+    radius_f = cfg.boundary_deg / 180.0 * h  # the band's width in pixels of this image
+    radius = max(1, int(np.floor(radius_f + 0.5)))  # pixels whose centre lies within it (at least 1)
+    _erode_boundaries(logits, labels32, top, last_field, radius, radius_f, cfg.boundary_logit * min(cfg.noise, 3.0))
 
     # Confidence: a seeded frame temperature (never fitted to the frame's accuracy).
     model = CONFIDENCE_MODELS[cfg.confidence]
@@ -373,9 +376,10 @@ def _vertical_runs(labels):
 
 
 @nb.njit(cache=True, parallel=True)
-def _erode_boundaries(logits, labels, top, field, radius, push):
-    """Near a label boundary, add ``push * (1 - (d - 1) / radius) * exp(0.4 field)`` to the logit of the
-    neighbour's expected class.
+def _erode_boundaries(logits, labels, top, field, radius, radius_f, push):
+    """Near a label boundary, add ``push * max(0, 1 - (d - 0.5) / radius_f) * exp(0.4 field)`` to the logit
+    of the neighbour's expected class (``d - 0.5``: the pixel centre's distance to the boundary, pixels;
+    ``radius`` = the search bound, the pixels whose centre can lie within ``radius_f``).
 
     The neighbour is the nearest different label within ``radius`` pixels along the row (longitude
     wraps) or the column (edge rows repeated, so a run reaching the image edge has no neighbour there);
@@ -419,7 +423,7 @@ def _erode_boundaries(logits, labels, top, field, radius, push):
             if nbr > 0:
                 tgt = top[nbr]
                 if tgt >= 0:
-                    decay = 1.0 - (best - 1) / radius
+                    decay = max(0.0, 1.0 - (best - 0.5) / radius_f)
                     logits[v, u, tgt] += np.float32(push * decay * np.exp(np.float32(0.4) * field[v, u]))
 
 

@@ -128,13 +128,25 @@ def test_errors_are_spatially_coherent(room_frames):
 
 
 def test_boundaries_are_eroded():
-    lab = np.full((64, 128), CLASS_NAMES.index("wall"), dtype=np.int64)
-    lab[20:44, 30:98] = CLASS_NAMES.index("table")
+    """The eroded band is boundary_deg (2.5 degrees) wide whatever the resolution: at 256 rows that is
+    3.6 pixels, at half the resolution 1.8, and the share of wrong pixels along the edge is the same."""
+    lab = np.full((256, 512), CLASS_NAMES.index("wall"), dtype=np.int64)
+    lab[80:176, 120:392] = CLASS_NAMES.index("table")
     cfg = SimulatedConfig(blobs=0.0, field_sigma=0.0)  # boundary term only
-    exp = expected_labels(CLASS_NAMES, VOCAB)[lab]
-    wrong = np.mean([simulate_logits(lab, CLASS_NAMES, VOCAB, i, cfg).argmax(-1) != exp for i in range(8)], axis=0)
-    assert wrong[19:21, 40:90].mean() > 0.3  # at the boundary (both sides)
-    assert not wrong[32, 55:75].any()  # deep inside, never
+    top = expected_labels(CLASS_NAMES, VOCAB)
+
+    def wrong_share(lab):
+        return np.mean([simulate_logits(lab, CLASS_NAMES, VOCAB, i, cfg).argmax(-1) != top[lab] for i in range(4)],
+                       axis=0)
+
+    wrong = wrong_share(lab)
+    assert wrong[79:81, 160:350].mean() > 0.3  # at the boundary (both sides)
+    assert not wrong[128, 220:300].any()  # deep inside, never
+    assert not wrong[70:74, 160:350].any()  # beyond the band (6+ pixels away), never
+    half = wrong_share(lab[::2, ::2])  # the same scene at half the resolution: the same eroded angle
+    band_full = wrong[60:100, 160:350].sum(axis=0).mean() / 256  # eroded share of a column, in image heights
+    band_half = half[30:50, 80:175].sum(axis=0).mean() / 128
+    assert abs(band_full - band_half) < 0.25 * band_full
 
 
 def test_one_class_vocabulary_labels_everything_that_class(room_frames):
