@@ -357,6 +357,7 @@ class VoxelMemory:
         self._block_keys = np.zeros(cap, np.int64)
         self._data = np.zeros((cap, BLOCK_VOXELS, self.total_width), np.int64)
         self.n_blocks = 0
+        self._nonzero = None  # (keys, rows) of the last nonzero(), until the next add
 
     def spec(self, name: str) -> ChannelSpec:
         for c in self.specs:
@@ -381,6 +382,7 @@ class VoxelMemory:
             return
         if len(delta) == 0 or not delta.channels:
             return
+        self._nonzero = None
         vals, cols = self._values(delta)
         keys = np.ascontiguousarray(delta.keys)
         start = 0
@@ -446,9 +448,14 @@ class VoxelMemory:
         keys : (n,) int64 sorted
         channels : dict name -> (n, width) int64
         """
-        keys, rows = _nonzero_voxels(self._block_keys, self._data, self.n_blocks)
-        order = np.argsort(keys, kind="stable")
-        return keys[order], self._split(rows[order])
+        if self._nonzero is None:  # a save and an export of the same memory scan it once
+            keys, rows = _nonzero_voxels(self._block_keys, self._data, self.n_blocks)
+            order = np.argsort(keys, kind="stable")
+            keys, rows = keys[order], rows[order]
+            keys.flags.writeable = rows.flags.writeable = False
+            self._nonzero = (keys, rows)
+        keys, rows = self._nonzero
+        return keys, self._split(rows)
 
     def to_arrays(self) -> dict:
         """The canonical on-disk form (see docs/mapping.md): equal sums give equal arrays."""
