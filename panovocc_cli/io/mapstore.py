@@ -54,32 +54,58 @@ def _compact(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _shuffled(arrays: dict, key: str, a: np.ndarray) -> None:
+    """Store the 2-D integer array ``a`` under ``key``: as it is when its type has one byte, else as its
+    byte planes (``(itemsize, a.size)`` uint8: every value's lowest byte, then every value's next byte...)
+    with its shape under ``shape_`` + the name. The high planes of small values are runs of 0x00 or 0xff,
+    which zlib compresses in passing: about a third less time and a fifth fewer bytes on the semantic
+    channels than the values as they are (docs/mapping.md, "Delta store size")."""
+    if a.dtype.itemsize == 1:
+        arrays[key] = a
+        return
+    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+    arrays[key] = np.ascontiguousarray(a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T)
+    pre, name = key.split("ch_", 1)
+    arrays[f"{pre}shape_{name}"] = np.array(a.shape, np.int64)
+
+
+def _unshuffled(z, files, key: str) -> np.ndarray:
+    """Inverse of :func:`_shuffled`: the stored array as int64."""
+    a = np.asarray(z[key])
+    pre, name = key.split("ch_", 1)
+    if f"{pre}shape_{name}" in files:
+        shape = tuple(int(x) for x in np.asarray(z[f"{pre}shape_{name}"]))
+        a = np.ascontiguousarray(a.T).view(f"<i{a.shape[0]}").reshape(shape)
+    return a.astype(np.int64)
+
+
 def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, np.ndarray]) -> None:
     """Put ``channels`` ((n, width) integer arrays) into ``arrays`` as ``{prefix}ch_NAME``, each in the
-    smallest signed integer type that holds it. A channel that is zero on most rows is stored as its
-    non-zero rows and their row indices as differences ``{prefix}rows_NAME``: zlib no longer spends its
-    time on zeros."""
+    smallest signed integer type that holds it, stored as byte planes (:func:`_shuffled`). A channel that
+    is zero on most rows is stored as its non-zero rows and their row indices as differences
+    ``{prefix}rows_NAME``: zlib no longer spends its time on zeros."""
     for name, arr in channels.items():
         arr = np.asarray(arr)
         arr = arr.reshape(n, arr.shape[-1] if arr.ndim == 2 else -1) if n == 0 else arr.reshape(n, -1)
         rows = np.flatnonzero(arr.any(axis=1)) if n else np.zeros(0, np.int64)
         if 2 * len(rows) < n:
-            arrays[f"{prefix}ch_{name}"] = _compact(arr[rows])
+            _shuffled(arrays, f"{prefix}ch_{name}", _compact(arr[rows]))
             arrays[f"{prefix}rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
         else:
-            arrays[f"{prefix}ch_{name}"] = _compact(arr)
+            _shuffled(arrays, f"{prefix}ch_{name}", _compact(arr))
 
 
 def _decode_channels(z, prefix: str, n: int) -> dict:
     """Inverse of :func:`_encode_channels`: dict name -> (n, width) int64."""
     ch = {}
     head = f"{prefix}ch_"
-    for k in z.files if hasattr(z, "files") else z:
+    files = set(z.files if hasattr(z, "files") else z)
+    for k in sorted(files):
         if not k.startswith(head):
             continue
         name = k[len(head):]
-        vals = np.asarray(z[k]).astype(np.int64)
-        if f"{prefix}rows_{name}" in (z.files if hasattr(z, "files") else z):  # sparse rows
+        vals = _unshuffled(z, files, k)
+        if f"{prefix}rows_{name}" in files:  # sparse rows
             rows = np.cumsum(np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64))
             full = np.zeros((n, vals.shape[1] if vals.ndim == 2 else 1), np.int64)
             full[rows] = vals.reshape(len(rows), full.shape[1])
