@@ -163,3 +163,41 @@ def test_map_failing_before_config_leaves_no_folder_it_created(room_seq, tmp_pat
     assert out.is_dir() == existed  # a folder the user made stays (empty but for nothing of ours)
     if existed:
         assert [p.name for p in out.iterdir() if not p.name.startswith(".")] == []
+
+
+def test_prefetched_frames_come_in_order_and_errors_where_they_belong(monkeypatch):
+    """The map loop's one-ahead reader: every frame once, in order, the first read on the calling thread
+    and the next ones on a second thread once the kernels allow it; a frame that fails raises when the
+    loop reaches it, after the frames before it were handed out; and with a threading layer that cannot
+    run kernels from two threads the loop stays on one thread."""
+    import threading
+
+    from panovocc_cli.mapping import pipeline
+
+    def run(safe, fail_at=None):
+        monkeypatch.setattr(pipeline, "concurrent_kernels_safe", lambda: safe)
+        threads = {}
+
+        def frames(i):
+            threads[i] = threading.get_ident()
+            if i == fail_at:
+                raise PanovoccError(f"frame {i} is broken")
+            return f"frame{i}"
+
+        got = []
+        try:
+            for i, f in pipeline.prefetched(frames, range(3, 8)):
+                got.append((i, f))
+        except PanovoccError as e:
+            got.append(str(e))
+        return got, threads
+
+    got, threads = run(True)
+    assert got == [(i, f"frame{i}") for i in range(3, 8)]
+    main = threading.get_ident()
+    assert threads[3] == main and all(threads[i] != main for i in range(5, 8))
+    got, threads = run(False)
+    assert got == [(i, f"frame{i}") for i in range(3, 8)] and set(threads.values()) == {main}
+    got, _ = run(True, fail_at=6)
+    assert got == [(3, "frame3"), (4, "frame4"), (5, "frame5"), "frame 6 is broken"]
+    assert list(pipeline.prefetched(lambda i: i, [])) == []
