@@ -166,6 +166,7 @@ OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
     "eval": ("scores.json", "scores.csv", "counts.csv"),
     "coverage": ("coverage.csv",),
     "views": ("views.json",),
+    "baseline": ("baseline.json",),
     "demo": ("scene/habitat/info_semantic.json", "seq/meta.json", "gt.npz", "map/config.json"),
 }
 
