@@ -10,14 +10,21 @@ import typer
 from ..errors import PanovoccError
 from ..mapping.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
+from ..mapping.ablation import AblationParams
 from ..mapping.config import MapConfig, ReviseConfig, SegevalConfig, SemanticParams
 from ._app import app
 from .options import OptionValues, build_config, config_command
 
 
-@config_command(app, MapConfig, "map", nested=("geometry", "occupancy", "semantic"))
+MAP_SECTIONS = (GeometryParams, OccupancyParams, SemanticParams, AblationParams)
+
+
+@config_command(app, MapConfig, "map", nested=("geometry", "occupancy", "semantic", "ablation"))
 def map_cmd(
     o: OptionValues,
+    config: Path = typer.Option(None, "--config", help="JSON file of map options by field name (e.g. {\"kernel\": "
+                                "\"point\", \"use_gsc\": false, \"use_rpu\": false}); options given on the "
+                                "command line win.", show_default=False),
     resume: bool = typer.Option(False, "--resume", help="Continue the interrupted run in OUT (its config is used)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a map already in OUT."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -31,20 +38,25 @@ def map_cmd(
         target = out if out is not None else seq
         if target is None or (seq is not None and out is not None):
             raise PanovoccError("--resume takes only the output folder: panovocc map --resume OUT")
-        given = [o.flags[n] for n in o.given if n not in ("seq", "out")]
+        given = [o.flags[n] for n in o.given if n not in ("seq", "out")] + (["--config"] if config is not None else [])
         if given:
             raise PanovoccError(f"--resume reuses the run's saved config; {', '.join(sorted(given))} cannot change it")
         summary = run_map(resume_out=target, progress=not quiet)
     else:
+        from_file = apply_config_file(o, config) if config is not None else set()
+        seq, out = o["seq"], o["out"]
         if seq is None or out is None:
             raise PanovoccError("map needs SEQ and OUT (or --resume OUT)")
-        if "segmenter" not in o.given and not (Path(seq) / "semantic").is_dir() and (Path(seq) / "meta.json").is_file():
+        if "segmenter" not in (o.given | from_file) and not (Path(seq) / "semantic").is_dir() and (Path(seq) / "meta.json").is_file():
             raise PanovoccError(f"{seq} has no ground-truth labels (semantic/) for the default simulated "
                                 "segmenter: pass --segmenter precomputed:DIR, or --segmenter none (geometry only)")
         cfg = build_config(MapConfig, o, geometry=build_config(GeometryParams, o),
-                           occupancy=build_config(OccupancyParams, o), semantic=build_config(SemanticParams, o))
+                           occupancy=build_config(OccupancyParams, o), semantic=build_config(SemanticParams, o),
+                           ablation=build_config(AblationParams, o))
         summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
     classed = f", {summary['classed']} with a class" if "classed" in summary else ""
+    if "corrected" in summary:
+        classed += f", {summary['corrected']} pose corrections applied"
     seg = f", segmenter {summary['segmenter_ms_per_frame']:.1f} ms" if "segmenter_ms_per_frame" in summary else ""
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
                f"(update {summary['update_ms_per_frame']:.1f} ms{seg}): {summary['occupied']} occupied{classed}, "
@@ -88,3 +100,45 @@ def bench(o: OptionValues) -> None:
 
     r = run_bench(BenchConfig(**o))
     typer.echo(r["line"])
+
+
+def apply_config_file(o: OptionValues, path: Path) -> set:
+    """Fill ``o`` from ``--config FILE``: a JSON object of map options by field name (the names of
+    ``OUT/config.json``'s fields: ``kernel``, ``use_gsc``, ``use_rpu``, ``drift_rot_deg``, ``seq``, ...). A value
+    given on the command line wins; an unknown name or a value outside its range is refused naming the file.
+    Returns the names the file set."""
+    import json
+
+    from ..config import check_option, option_name
+    from .options import option_specs
+
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PanovoccError("config file not found", path) from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise PanovoccError(f"not a JSON file ({type(e).__name__}: {e})", path) from None
+    if not isinstance(d, dict):
+        raise PanovoccError("expected a JSON object of map options by name", path)
+    specs = {s.field: s for cls in (MapConfig, *MAP_SECTIONS) for s in option_specs(cls)}
+    used = set()
+    for key, value in d.items():
+        spec = specs.get(key)
+        if spec is None:
+            raise PanovoccError(f"unknown map option {key!r} (expected field names such as {', '.join(sorted(specs)[:6])}, "
+                                "...)", path)
+        if key in o.given:
+            continue
+        if spec.opt.negate or isinstance(spec.default, bool):
+            if not isinstance(value, bool):
+                raise PanovoccError(f"{key} must be true or false, got {value!r}", path)
+        elif value is not None:
+            try:
+                value = check_option(option_name(spec.field, spec.opt), spec.opt, value)
+            except PanovoccError as e:
+                raise PanovoccError(str(e), path) from None
+            if spec.opt.parse is not None:
+                value = spec.opt.parse(value)
+        o[key] = value
+        used.add(key)
+    return used

@@ -18,6 +18,7 @@ from ..config import DEFAULT_SEED, MAX_STRIDE, option
 from ..errors import PanovoccError
 from ..semantics.gsc import GSCParams
 from ..semantics.params import EvidenceWeights
+from .ablation import AblationParams
 from .params import GeometryParams, OccupancyParams
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -129,6 +130,8 @@ class MapConfig:
                                        "max(1, W // 512) (2 at 1024).")
     # segmenter, vocabulary, GSC; the default "auto" = simulated when the sequence has labels, else none
     semantic: SemanticParams = field(default_factory=SemanticParams)
+    # the ablation switches: without RPU, the pose perturbation-and-correction schedule (mapping/ablation.py)
+    ablation: AblationParams = field(default_factory=AblationParams)
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
@@ -150,7 +153,7 @@ class MapConfig:
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
-                       semantic=s)
+                       semantic=s, ablation=AblationParams.from_json(d.get("ablation")))
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
 

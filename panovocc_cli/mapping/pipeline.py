@@ -38,6 +38,7 @@ from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
+from .ablation import CorrectionSchedule, check_resumable
 from .config import MapConfig, ReviseConfig, SemanticParams
 from .export import point_colors
 from .mapper import Mapper, MapperConfig
@@ -285,6 +286,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
         cfg = load_config(out)
+        check_resumable(cfg.ablation, out / CONFIG_NAME)
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if (out / MEMORY_NAME).is_file():
@@ -330,11 +332,19 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
 
     t0 = time.perf_counter()
     t_compute = 0.0
+    schedule = CorrectionSchedule(seq.poses, cfg.ablation) if cfg.ablation.perturbs else None
+    corrected = 0
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
+    # the ablation schedule reads frames again for its corrections: no prefetching thread beside it
+    stream = prefetched(frames, range(start, end)) if schedule is None else ((i, frames(i)) for i in range(start, end))
     try:
-        for i, frame in prefetched(frames, range(start, end)):
+        for i, frame in stream:
+            if schedule is not None:  # the ablation schedule: drifted pose now, the true one later
+                frame.T_world_cam = schedule.integration_pose(i)
             tc = time.perf_counter()
             mapper.integrate(frame)
+            if schedule is not None:
+                corrected += schedule.apply(mapper, frames, i)
             t_compute += time.perf_counter() - tc
             bar.update(1)
             done = i + 1
@@ -354,6 +364,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                "empty_frames": list(mapper.empty_frames)}
     if frames.segmenter is not None:
         summary["segmenter_ms_per_frame"] = 1e3 * frames.segmenter_seconds / steps
+    if schedule is not None:
+        summary["corrected"] = corrected
     if end < n:
         summary.update(stopped_at=end)
         return summary
