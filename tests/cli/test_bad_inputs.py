@@ -552,6 +552,25 @@ CASES = [
     C("mapdir", "resume-format-version-99",
       lambda b, t: ["map", "--resume", map_with_config(b, t, format_version=99), *Q], "format_version"),
     C("mapdir", "resume-not-a-map", lambda b, t: ["map", "--resume", nonempty(t), *Q], "config.json"),
+    # --- baselines (issue 12)
+    C("baselines", "run-seq-missing", lambda b, t: ["baselines", "run", "persp-tsdf", t / "nosuch", t / "o", *Q],
+      "not found"),
+    C("baselines", "run-unknown-name", lambda b, t: ["baselines", "run", "tsdf", b / "seq", t / "o", *Q], "NAME"),
+    C("baselines", "run-bad-box", lambda b, t: ["baselines", "run", "single-pano", b / "seq", t / "o", "--box", "4.8",
+                                                *Q], "--box"),
+    C("baselines", "run-out-not-empty", lambda b, t: ["baselines", "run", "forward-only", b / "seq", nonempty(t), *Q],
+      "not empty"),
+    C("baselines", "run-gt-not-npz", lambda b, t: ["baselines", "run", "single-pano", b / "seq", t / "o", "--gt",
+                                                   write(t / "g.npz", "x"), *Q], "g.npz"),
+    C("baselines", "merge-input-missing", lambda b, t: ["baselines", "merge", t / "m.npz", t / "no.npz"], "not found"),
+    C("baselines", "merge-not-a-grid", lambda b, t: ["baselines", "merge", t / "m.npz", write(t / "x.txt", "x")],
+      "x.txt"),
+    C("baselines", "merge-out-is-input", lambda b, t: ["baselines", "merge", b / "pred.npz", b / "pred.npz",
+                                                       "--overwrite"], "input"),
+    C("baselines", "map-config-unknown", lambda b, t: ["map", b / "seq", t / "o", "--config",
+                                                       write(t / "c.json", '{"kernal": "point"}'), *Q], "kernal"),
+    C("baselines", "map-config-resume", lambda b, t: ["map", "--resume", map_copy(b, t), "--config",
+                                                      write(t / "c.json", "{}"), *Q], "--config"),
 ]
 
 
