@@ -158,7 +158,7 @@ def run_baseline(cfg: BaselineConfig) -> dict:
         from ..evaluation.metrics import evaluate
         from .single_pano import single_pano
 
-        locals_, pairs = [], []
+        locals_, pairs, scores = [], [], []
         for i, lbox, grid in single_pano(stream, mc.mapper_config(), box, cfg.vertical):
             locals_.append(grid)
             files[f"frames/{frame_stem(i)}.npz"] = grid
@@ -166,14 +166,15 @@ def run_baseline(cfg: BaselineConfig) -> dict:
                 pair = (grid, lbox.crop(gt))  # the ground truth cut to the frame's box
                 pairs.append(pair)
                 r = evaluate([pair], cfg.classes)["freeocc"]
+                scores.append((r.iou, r.miou))
                 rows.append([i, *(_pct(x) for x in (r.iou, r.miou, r.miou_present))])
         pred = merge_dense(locals_)
         extra.update(box_m=list(box), box_voxels=list(locals_[0].labels.shape), vertical=cfg.vertical)
         if gt is not None:
             r = evaluate(pairs, cfg.classes)["freeocc"]
             extra["per_frame"] = {"classes": cfg.classes, "pooled_iou": _pct(r.iou), "pooled_miou": _pct(r.miou),
-                                  "mean_iou": _pct(float(np.nanmean([row[1] for row in rows]))),
-                                  "mean_miou": _pct(float(np.nanmean([row[2] for row in rows])))}
+                                  "mean_iou": _pct(_nanmean([s[0] for s in scores])),
+                                  "mean_miou": _pct(_nanmean([s[1] for s in scores]))}
     seconds = time.perf_counter() - t0
     occ = (pred.labels != 0) & (pred.labels != 255)
     summary = {"baseline": cfg.name, "seq": str(cfg.seq), "frames": n, "vocab": vocab,
@@ -192,6 +193,13 @@ def run_baseline(cfg: BaselineConfig) -> dict:
         write_text(tmp / BASELINE_JSON, json.dumps(summary, indent=2) + "\n")
         write_run_config(tmp / CONFIG_NAME, cfg)
     return {**summary, "seconds": seconds, "out": str(cfg.out)}
+
+
+def _nanmean(values) -> float:
+    """Mean of the finite values (NaN when there is none: every frame's score undefined)."""
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if len(v) else math.nan
 
 
 def _pct(x: float) -> float | None:

@@ -30,8 +30,9 @@ def run_cmd(o: OptionValues, quiet: bool = typer.Option(False, "--quiet", help="
     pf = s.get("per_frame")
     extra = ""
     if pf:
-        extra = (f"; per frame in its box ({pf['classes']}): IoU {pf['mean_iou']:.2f}, mIoU {pf['mean_miou']:.2f} "
-                 f"(mean), pooled IoU {pf['pooled_iou']:.2f}, mIoU {pf['pooled_miou']:.2f}")
+        f = lambda x: "n/a" if x is None else f"{x:.2f}"  # noqa: E731  (None: undefined, e.g. empty union)
+        extra = (f"; per frame in its box ({pf['classes']}): IoU {f(pf['mean_iou'])}, mIoU {f(pf['mean_miou'])} "
+                 f"(mean), pooled IoU {f(pf['pooled_iou'])}, mIoU {f(pf['pooled_miou'])}")
     typer.echo(f"{s['baseline']}: {s['frames']} frames in {s['seconds']:.1f} s, {s['occupied']} occupied voxels, "
                f"{s['classed']} with a class -> {s['out']}/prediction.npz{extra}")
 
