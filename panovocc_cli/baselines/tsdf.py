@@ -151,6 +151,9 @@ class TsdfStream:
     def occupied_and_free(self) -> tuple[np.ndarray, np.ndarray]:
         """Sorted int64 keys of the occupied and the free voxels (module docstring)."""
         h = self.h
+        if self._vbg.hashmap().size() == 0:  # no valid depth ever (Open3D refuses to extract from an empty grid)
+            z = np.zeros(0, np.int64)
+            return z, z
         pcd = self._vbg.extract_point_cloud(weight_threshold=self.weight_threshold)
         pts = pcd.point.positions.numpy().astype(np.float64) if "positions" in pcd.point else np.zeros((0, 3))
         occ = np.unique(pack_keys(np.floor(pts / h + 0.5).astype(np.int64))) if len(pts) else np.zeros(0, np.int64)

@@ -56,6 +56,16 @@ def test_tsdf_stream_plane_lands_in_its_voxel_layer():
     assert np.all(np.abs(g.origin / H - 0.5 - np.round(g.origin / H - 0.5)) < 1e-9)  # on the global lattice
 
 
+def test_tsdf_stream_without_depth_is_empty():
+    """A stream that never had a valid depth pixel (all 0, or all beyond the range) gives an all-unobserved grid."""
+    s = TsdfStream(PinholeCamera.from_fov(16, 16, math.pi / 2), H, 2, max_range=5.0)
+    assert set(np.unique(s.grid(["a", "b"]).labels)) == {255}
+    s.integrate(np.zeros((16, 16)), np.eye(4), None, np.zeros((16, 16), np.int64))
+    s.integrate(np.full((16, 16), 9.0), np.eye(4), None, np.zeros((16, 16), np.int64))
+    g = s.grid(["a", "b"])
+    assert g.labels.shape == (1, 1, 1) and set(np.unique(g.labels)) == {255} and s.frames == 2
+
+
 def test_persp_tsdf_streams_merge_and_surfaces(room, tmp_path, cli):
     out = tmp_path / "p"
     code, so, err = cli(["baselines", "run", "persp-tsdf", room, out, "--noise", "0", "--quiet"])
