@@ -24,10 +24,23 @@ from .merge import merge_dense
 from .tsdf import TRUNC_VOXELS, TsdfStream
 
 def pixel_classes(frame: Frame) -> np.ndarray | None:
-    """(H, W) int64 vocabulary index of each pixel (argmax of the frame's logits), or None without logits."""
+    """(H, W) int64 vocabulary index of each pixel (argmax of the frame's logits), or None without logits.
+
+    Logits at the map's semantic stride s (pixels (s i, s j) only: :func:`panovocc_cli.frame.logits_stride`)
+    give each pixel the class of the nearest sampled pixel (ties: the one above / to the left).
+    """
     if frame.logits is None:
         return None
-    return np.asarray(frame.logits).argmax(axis=2).astype(np.int64)
+    from ..frame import logits_stride
+
+    cls = np.asarray(frame.logits).argmax(axis=2).astype(np.int64)
+    H, W = frame.camera.shape
+    s = logits_stride((H, W), cls.shape)
+    if s > 1:
+        rows = np.minimum((np.arange(H) + (s - 1) // 2) // s, cls.shape[0] - 1)
+        cols = np.minimum((np.arange(W) + (s - 1) // 2) // s, cls.shape[1] - 1)
+        cls = cls[rows[:, None], cols[None, :]]
+    return cls
 
 
 def fuse_streams(frames: Iterable[Frame], rig: ViewRig, vocab: Sequence[str], voxel_size: float, *,

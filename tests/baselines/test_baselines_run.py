@@ -56,6 +56,23 @@ def test_tsdf_stream_plane_lands_in_its_voxel_layer():
     assert np.all(np.abs(g.origin / H - 0.5 - np.round(g.origin / H - 0.5)) < 1e-9)  # on the global lattice
 
 
+def test_pixel_classes_at_the_semantic_stride():
+    """Logits at stride 2 (pixels (2i, 2j) of an 8x16 panorama): each pixel takes the nearest sampled pixel's class."""
+    from panovocc_cli.baselines.persp_tsdf import pixel_classes
+    from panovocc_cli.frame import Frame
+    from panovocc_cli.geometry.cameras import ErpCamera
+
+    cls = np.arange(32).reshape(4, 8) % 3
+    logits = np.eye(3, dtype=np.float32)[cls]  # (4, 8, 3)
+    f = Frame(np.zeros((8, 16, 3), np.uint8), np.ones((8, 16), np.float32), np.eye(4), ErpCamera(16, 8), logits)
+    full = pixel_classes(f)
+    assert full.shape == (8, 16)
+    assert np.array_equal(full[::2, ::2], cls)  # the sampled pixels keep their own class
+    assert np.array_equal(full[1::2, 1::2], cls)  # odd pixels: the sample above-left (a tie at distance 1)
+    f.logits = np.eye(3, dtype=np.float32)[np.repeat(np.repeat(cls, 2, 0), 2, 1)]  # stride 1
+    assert np.array_equal(pixel_classes(f), full)
+
+
 def test_tsdf_stream_without_depth_is_empty():
     """A stream that never had a valid depth pixel (all 0, or all beyond the range) gives an all-unobserved grid."""
     s = TsdfStream(PinholeCamera.from_fov(16, 16, math.pi / 2), H, 2, max_range=5.0)
