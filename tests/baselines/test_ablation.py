@@ -28,6 +28,38 @@ def test_schedule_blocks_and_reanchoring():
     assert CorrectionSchedule(T, AblationParams()).corrections_after(2) == []  # no drift: nothing to correct
 
 
+def test_drift_is_a_seeded_random_walk():
+    """Zero drift: the true poses; a drift: rigid poses, the first exact, the same seed the same bytes, errors growing
+    like a random walk."""
+    from panovocc_cli.mapping.ablation import drifted_poses
+
+    n = 200
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.linspace(0, 4, n)
+    assert np.array_equal(drifted_poses(T, AblationParams()), T)
+    p = AblationParams(drift_rot_deg=0.0, drift_trans_m=0.01, drift_seed=3)
+    D = drifted_poses(T, p)
+    assert np.array_equal(D, drifted_poses(T, p)) and np.array_equal(D[0], T[0])
+    assert np.allclose(D[:, :3, :3], np.eye(3))  # no rotation drift: translation errors only
+    err = D[:, :3, 3] - T[:, :3, 3]
+    steps = np.diff(err, axis=0)
+    assert abs(steps.std() - 0.01) < 0.0015  # each step adds N(0, 0.01^2) per axis
+    R = drifted_poses(T, AblationParams(drift_rot_deg=1.0, drift_seed=3))[:, :3, :3]
+    assert np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+
+
+def test_drift_matches_geometry_drift():
+    """Where the slam helper's geometry.drift exists, the schedule's drift is its drift_trajectory, bit for bit."""
+    from panovocc_cli.mapping.ablation import drifted_poses
+
+    drift = pytest.importorskip("panovocc_cli.geometry.drift")
+    T = np.tile(np.eye(4), (50, 1, 1))
+    T[:, 1, 3] = np.linspace(0, 2, 50)
+    q = AblationParams(drift_rot_deg=0.7, drift_trans_m=0.02, drift_seed=5)
+    assert np.array_equal(drifted_poses(T, q), drift.drift_trajectory(T, trans_m_per_sqrt_frame=0.02,
+                                                                      rot_deg_per_frame=0.7, seed=5))
+
+
 def test_rpu_undoes_the_drift_exactly_and_without_it_stale_copies_stay(room, tmp_path, cli):
     """With RPU the corrected map is byte-identical to the map made with the true poses; without RPU the stale,
     drifted contributions stay: more occupied voxels, and the drifted copies are in the map."""
