@@ -1,4 +1,5 @@
-"""Commands that make data: ``synth`` (procedural scenes), ``render`` (ERP sequences), ``gt`` (mesh ground truth).
+"""Commands that make data: ``synth`` (procedural scenes), ``render`` (ERP sequences), ``gt`` (mesh ground truth,
+or ground truth lifted from a captured sequence).
 
 Their options are declared once, on SynthConfig, RenderConfig and GtConfig (cli/options.py)."""
 
@@ -7,10 +8,11 @@ from __future__ import annotations
 import typer
 
 from ..datasets.synth import SynthConfig
-from ..gt_config import GtConfig
+from ..errors import PanovoccError
+from ..gt_config import GtConfig, LiftParams
 from ..rendering.render import RenderConfig
 from ._app import app
-from .options import OptionValues, config_command
+from .options import OptionValues, build_config, config_command
 
 
 @config_command(app, SynthConfig, "synth")
@@ -33,11 +35,32 @@ def render(o: OptionValues) -> None:
                f"({s['ms_per_frame']:.0f} ms/frame), valid depth {100 * s['valid_depth']:.1f}%")
 
 
-@config_command(app, GtConfig, "gt")
-def gt(o: OptionValues) -> None:
-    """Voxelise the scene's mesh surface on the global lattice (area-vote class per voxel)."""
+@config_command(app, GtConfig, "gt", nested=("lift",))
+def gt(o: OptionValues, quiet: bool = typer.Option(False, "--quiet", help="No progress bar.")) -> None:
+    """Ground truth on the global lattice: voxelise a scene's mesh (gt SCENE OUT; area-vote class per voxel), or
+    lift a captured sequence (gt --from-sequence SEQ OUT: occupancy from every frame's depth, classes from the
+    annotated frames' labels; docs/gt.md)."""
     from ..gt import run_gt
 
-    s = run_gt(GtConfig(**o))
-    typer.echo(f"{o['out']}: grid {s['shape'][0]}x{s['shape'][1]}x{s['shape'][2]} at {s['voxel_size']} m, "
-               f"{s['occupied']} occupied voxels, {s['classes']} classes")
+    scene, out = o["scene"], o["out"]
+    if o["from_sequence"] is not None:
+        if out is not None:
+            raise PanovoccError("gt --from-sequence SEQ takes one more argument, OUT (not SCENE and OUT)")
+        scene, out = None, scene
+        lift_given = []
+    else:
+        lift_given = [o.flags[n] for n in o.given if n in LiftParams.__dataclass_fields__]
+        if lift_given:
+            raise PanovoccError(f"{', '.join(sorted(lift_given))} only apply with --from-sequence SEQ")
+        if scene is None or out is None:
+            raise PanovoccError("gt needs SCENE and OUT (or --from-sequence SEQ OUT)")
+    o["scene"], o["out"] = scene, out
+    cfg = build_config(GtConfig, o, lift=build_config(LiftParams, o), progress=not quiet)
+    s = run_gt(cfg)
+    text = (f"{out}: grid {s['shape'][0]}x{s['shape'][1]}x{s['shape'][2]} at {s['voxel_size']} m, "
+            f"{s['occupied']} occupied voxels, {s['classes']} classes")
+    if "voted" in s:
+        text += (f"; {s['frames']} frames, {s['annotated']} annotated: {s['voted']} voxels labelled by votes, "
+                 f"{s['transferred']} by nearest-label transfer, {s['no_class']} left 254; {s['free']} free, "
+                 f"{s['unknown']} never observed (255)")
+    typer.echo(text)

@@ -15,11 +15,10 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS, validate_config
-from .errors import PanovoccError
-from .geometry.lattice import bounds_to_grid, index_to_center
-from .grid import OCCUPIED_UNKNOWN_CLASS, Grid
-from .gt_config import GtConfig  # noqa: F401  (re-export: its public home until now)
+from ..config import DEFAULT_VOXEL_SIZE, GT_BOUNDARY_EPS
+from ..errors import PanovoccError
+from ..geometry.lattice import bounds_to_grid, index_to_center
+from ..grid import OCCUPIED_UNKNOWN_CLASS, Grid
 
 BOUNDARY_EPS = GT_BOUNDARY_EPS  # voxel units (config.py)
 MIN_AREA = 1e-10  # voxel units^2: pieces smaller than this (edges, corners touching a voxel) are dropped
@@ -224,21 +223,3 @@ def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:
         labels.reshape(-1)[vox[win]] = lab
     names = ["empty"] + list(scene.class_names[1:])
     return Grid(labels, index_to_center(i0, h), h, names).validate()
-
-
-def run_gt(cfg: GtConfig) -> dict:
-    """Voxelise ``cfg.scene`` and write the grid ``.npz``; returns a summary dict."""
-    from .datasets.replica import read_replica_scene, scene_files
-    from .io.atomic import check_output
-    from .io.grid import write_grid
-    from .io.runconfig import config_path_beside, write_run_config
-
-    cfg = validate_config(cfg)  # voxel_size in (0, MAX_VOXEL_SIZE]: declared on GtConfig
-    check_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.scene, *scene_files(cfg.scene)), folder=False)
-    scene = read_replica_scene(cfg.scene)
-    grid = voxelize_scene(scene, cfg.voxel_size)
-    write_grid(cfg.out, grid)
-    write_run_config(config_path_beside(cfg.out), cfg)
-    occ = (grid.labels > 0) & (grid.labels < 255)
-    return {"shape": tuple(int(s) for s in grid.labels.shape), "occupied": int(occ.sum()),
-            "classes": len(grid.class_names), "voxel_size": grid.voxel_size}
