@@ -31,7 +31,7 @@ def _imported_modules(*args: str) -> set[str]:
 
 @pytest.mark.parametrize("args", [("--help",), ("map", "--help"), ("gt", "--help"), ("render", "--help"),
                                   ("segeval", "--help"), ("revise", "--help"),
-                                  ("views", "--help")])
+                                  ("views", "--help"), ("convert", "holo360d", "--help")])
 def test_help_imports_no_heavy_library(args):
     heavy = sorted(set(HEAVY) & _imported_modules(*args))
     assert not heavy, f"panovocc {' '.join(args)} imports {heavy}"
