@@ -642,8 +642,8 @@ class _House:
         n3 = np.array([*_NORMAL[side], 0.0])
         U = np.array([1.0, 0, 0]) if side in "SN" else np.array([0, 1.0, 0])
 
-        def skip(sa, sb, ta, tb):
-            sc, tc = (sa + sb) / 2, (ta + tb) / 2
+        def skip(sa, sb, ta, tb):  # cells of the wall's grid (offsets from ``lo``) inside an opening
+            sc, tc = lo + (sa + sb) / 2, (ta + tb) / 2
             out = np.zeros(len(sa), bool)
             for o in ops:
                 out |= (sc > o.s0) & (sc < o.s1) & (tc > o.z0) & (tc < o.z1)
@@ -769,6 +769,39 @@ def _sample(dist, lo, pts):
 
 
 def _plan(house: _House, frames: int, rng: np.random.Generator) -> np.ndarray:
+    """The trajectory of a snake-order home: every room in turn, through the door to the next."""
+    return _route(house, frames, rng, _snake_tour)
+
+
+def _snake_tour(house: _House, centers: np.ndarray, views, snap) -> list[int]:
+    """Waypoints (raster node ids): per room two wide-open viewpoints (one in each half), then the approaches
+    on both sides of the door to the next room."""
+    way: list[int] = []
+    rooms = house.rooms
+    for i, r in enumerate(rooms):
+        v = views(r)
+        entry = way[-1] if way else None
+        exit_door = next((o for o in r.openings if o.kind == "door" and o.other == i + 1), None)
+        if entry is not None:
+            v.sort(key=lambda k: np.linalg.norm(centers[k] - centers[entry]))
+        elif exit_door is not None:
+            m = r.P(exit_door.side, (exit_door.s0 + exit_door.s1) / 2, 0.0, 0.0)[:2]
+            v.sort(key=lambda k: -np.linalg.norm(centers[k] - m))
+        way += v
+        if exit_door is not None:
+            m = (exit_door.s0 + exit_door.s1) / 2
+            nxt = rooms[i + 1]
+            way.append(snap(r.P(exit_door.side, m, -0.6, 0.0)[:2], r))
+            way.append(snap(r.P(exit_door.side, m, WALL_T + 0.6, 0.0)[:2], nxt))
+    return way
+
+
+def _route(house: _House, frames: int, rng: np.random.Generator, tour) -> np.ndarray:
+    """``frames`` poses along the clearance-weighted shortest path through the waypoints ``tour`` gives.
+
+    ``tour(house, centers, views, snap)`` returns raster node ids; ``views(room)`` gives a room's two
+    wide-open viewpoints, ``snap(xy, room)`` the free node nearest a point (inside ``room`` when given).
+    """
     from scipy import ndimage, sparse
     from scipy.sparse import csgraph
 
@@ -802,13 +835,11 @@ def _plan(house: _House, frames: int, rng: np.random.Generator) -> np.ndarray:
             raise _Retry
         return k
 
-    # Waypoints: per room two wide-open viewpoints (one in each half), door approaches between rooms.
     dist_ok = np.where(ok, dist, -1.0)
-    way: list[int] = []
-    rooms = house.rooms
-    for i, r in enumerate(rooms):
+
+    def views(r: Room) -> list[int]:
         long_x = (r.x1 - r.x0) >= (r.y1 - r.y0)
-        views = []
+        out = []
         for half in (0, 1):
             if long_x:
                 xm = (r.x0 + r.x1) / 2
@@ -821,20 +852,10 @@ def _plan(house: _House, frames: int, rng: np.random.Generator) -> np.ndarray:
             if not inside.any():
                 raise _Retry
             score = np.where(inside, dist_ok[ci, cj], -np.inf)
-            views.append(int(np.argmax(score)))
-        entry = way[-1] if way else None
-        exit_door = next((o for o in r.openings if o.kind == "door" and o.other == i + 1), None)
-        if entry is not None:
-            views.sort(key=lambda k: np.linalg.norm(centers[k] - centers[entry]))
-        elif exit_door is not None:
-            m = r.P(exit_door.side, (exit_door.s0 + exit_door.s1) / 2, 0.0, 0.0)[:2]
-            views.sort(key=lambda k: -np.linalg.norm(centers[k] - m))
-        way += views
-        if exit_door is not None:
-            m = (exit_door.s0 + exit_door.s1) / 2
-            nxt = rooms[i + 1]
-            way.append(snap(r.P(exit_door.side, m, -0.6, 0.0)[:2], r))
-            way.append(snap(r.P(exit_door.side, m, WALL_T + 0.6, 0.0)[:2], nxt))
+            out.append(int(np.argmax(score)))
+        return out
+
+    way = tour(house, centers, views, snap)
     path = [centers[way[0]]]
     for a, b in zip(way[:-1], way[1:]):
         if a == b:
