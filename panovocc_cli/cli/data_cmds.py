@@ -21,7 +21,8 @@ def synth(o: OptionValues) -> None:
     from ..datasets.synth import run_synth
 
     s = run_synth(SynthConfig(**o))
-    typer.echo(f"{o['out']}: {s['rooms']} rooms, {s['faces']} quads, {s['objects']} objects, "
+    corridor = " and a corridor" if s["corridor"] else ""
+    typer.echo(f"{o['out']}: {s['rooms']} rooms{corridor}, {s['faces']} quads, {s['objects']} objects, "
                f"{len(s['classes'])} classes, {s['frames']} poses over {s['path_m']:.1f} m")
 
 

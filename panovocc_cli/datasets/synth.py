@@ -48,19 +48,25 @@ class SynthConfig:
     """Options of ``panovocc synth``.
 
     out: scene folder to write (Replica layout); seed: random seed; rooms: number of rooms (None:
-    2 or 3 drawn from the seed); frames: trajectory poses; offset: (x, y, z) metres the home is moved
-    from the origin (a user-chosen placement relative to the voxel lattice; None: drawn from the seed).
+    2 or 3 drawn from the seed; 6-8 with ``house``); frames: trajectory poses (None: 60, or 300 with
+    ``house``); offset: (x, y, z) metres the home is moved from the origin (a user-chosen placement
+    relative to the voxel lattice; None: drawn from the seed); house: a house-scale home
+    (:mod:`panovocc_cli.datasets.house`).
     """
 
     out: Path = option(argument=True, metavar="SCENE", help="Scene folder to write (Replica layout: "
                        "habitat/mesh_semantic.ply, habitat/info_semantic.json, traj.txt).")
     seed: int = option(DEFAULT_SEED, min=0, help="Random seed; the same seed gives the same files.")
-    rooms: int | None = option(None, min=1, max=MAX_ROOMS, help="Number of rooms, 1-6 (default: 2 or 3 from the seed).")
-    frames: int = option(60, min=2, help="Number of trajectory poses.")
+    rooms: int | None = option(None, min=1, max=8, help="Number of rooms, 1-6 (default: 2 or 3 from the seed); "
+                               "with --house 6-8 off a corridor (default: 6, 7 or 8 from the seed).")
+    frames: int | None = option(None, min=2, show_default="60; 300 with --house",
+                                help="Number of trajectory poses.")
     offset: tuple[float, float, float] | None = option(
         None, cli_type=str, parse=lambda text: parse_offset(text), metavar="X,Y,Z",
         help="X,Y,Z metres: move the home (laid out from the origin) by this offset instead of the seeded one "
              "(e.g. 0,0,0 puts the floor on a voxel face).")
+    house: bool = option(False, help="A house-scale home: 6-8 furnished rooms on both sides of a corridor, a long "
+                                     "trajectory through all of them (the embedded Pan-Holo split's scene).")
     overwrite: bool = option(False, help="Replace a previous panovocc scene in SCENE (never any other folder).")
 
 
@@ -1003,14 +1009,24 @@ def run_synth(cfg: SynthConfig) -> dict:
     from ..io.runconfig import CONFIG_NAME, write_run_config
     from .replica import TRAJ_NAME, write_replica_scene
 
+    from dataclasses import replace
+
     cfg = validate_config(cfg)  # seed, rooms, frames: the ranges declared on SynthConfig
     check_output(cfg.out, "scene", cfg.overwrite)  # as the command line: never replace what synth did not write
-    g = generate_scene(cfg.seed, cfg.rooms, cfg.frames, cfg.offset)
+    if cfg.house:
+        from .house import HOUSE_FRAMES, generate_house
+
+        cfg = replace(cfg, frames=HOUSE_FRAMES if cfg.frames is None else cfg.frames)
+        g = generate_house(cfg.seed, cfg.rooms, cfg.frames, cfg.offset)
+    else:
+        cfg = replace(cfg, frames=60 if cfg.frames is None else cfg.frames)
+        g = generate_scene(cfg.seed, cfg.rooms, cfg.frames, cfg.offset)
     with atomic_dir(cfg.out) as tmp:
         write_replica_scene(tmp, g["vertices"], g["quads"], g["face_object"], g["colors"], g["object_classes"])
         write_poses(tmp / TRAJ_NAME, g["T_world_cam"])
         write_run_config(tmp / CONFIG_NAME, cfg)
     xy = g["T_world_cam"][:, :2, 3]
-    return {"rooms": len(g["rooms"]), "faces": int(len(g["quads"])), "objects": len(g["object_classes"]),
+    return {"rooms": len(g["rooms"]) - (1 if cfg.house else 0), "corridor": cfg.house,
+            "faces": int(len(g["quads"])), "objects": len(g["object_classes"]),
             "classes": sorted({canonical_name(c) for c in g["object_classes"]}), "frames": len(xy),
             "path_m": _length(xy), "offset": [float(x) for x in g["offset"]]}
