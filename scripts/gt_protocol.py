@@ -62,7 +62,7 @@ def main() -> None:
     lift0 = LiftParams()
     rows, rule_rows = [], []
     cols = ["seed", "depth", "annotated", "IoU", "mIoU", "IoU obs", "mIoU obs", "label agree", "classed",
-            "agree | classed", "voted", "transferred", "254", "cpu s"]
+            "agree among classed", "voted", "transferred", "254", "cpu s"]
     for seed in args.seeds:
         scene = out / f"scene{seed}"
         if not (scene / "traj.txt").is_file():
@@ -97,7 +97,8 @@ def main() -> None:
                     for radius in ((0.0, 0.08, 0.16, 0.32) if (mf, mp, ratio) == (2, 3, 0.2) else (0.16,)):
                         g = acc.grid(seq.meta.class_names, mf, mp, radius, ratio)
                         c = compare_to_mesh(g, mesh)
-                        rule_rows.append([seed, "clean" if noise == "none" else noise, mf, mp, ratio, radius,
+                        rule_rows.append([seed, "clean" if noise == "none" else noise, mf, mp, f"{ratio:g}",
+                                          f"{radius:g}",
                                           c["iou"], c["miou"], c["iou_observed"], c["miou_observed"], c["agree"],
                                           c["classed"]])
     md = _write(out, "protocol", cols, rows, "Lifted vs mesh ground truth (percent; defaults: min frames "
