@@ -4,9 +4,10 @@ the delta store's size on disk, optionally with the peak memory of the run from 
     /usr/bin/time -v panovocc map work/pan-holo/seq work/pan-holo/map --quiet 2> work/pan-holo/map.time
     python scripts/map_scale.py work/pan-holo/map --time-log work/pan-holo/map.time
 
-Prints one JSON object: frames, occupied voxels (prediction.npz), the memory's arrays in bytes (what
-memory.npz holds, i.e. the voxel store the mapper keeps in RAM) and per occupied voxel, the delta store
-on disk (bytes, per frame), and from the time log the peak resident memory and it per occupied voxel.
+Prints one JSON object: frames, occupied voxels (prediction.npz), the voxel memory the mapper keeps in RAM
+(``Mapper.load``: its hashed blocks' data, block keys and hash table, in bytes, and per occupied voxel),
+the memory file and the delta store on disk (bytes; per frame), and from the time log the peak resident
+memory of the whole run and it per occupied voxel.
 """
 
 from __future__ import annotations
@@ -26,16 +27,22 @@ def main() -> None:
     import numpy as np
 
     from panovocc_cli.io.grid import read_grid
-    from panovocc_cli.io.mapstore import DELTAS_DIR, read_memory
+    from panovocc_cli.io.mapstore import DELTAS_DIR, MEMORY_NAME, read_memory
+    from panovocc_cli.mapping import Mapper
 
-    arrays, frames, _, _ = read_memory(args.map)
+    _, frames, _, _ = read_memory(args.map)
     g = read_grid(args.map / "prediction.npz")
     occ = int(((g.labels > 0) & (g.labels < 255)).sum())
-    mem = int(sum(np.asarray(a).nbytes for a in arrays.values()))
+    m = Mapper.load(args.map).memory
+    parts = [getattr(m, k) for k in ("_data", "_block_keys", "_table_keys", "_table_slots") if hasattr(m, k)]
+    used = m.n_blocks * m._data[0].nbytes if hasattr(m, "_data") else 0
+    mem = int(sum(np.asarray(a).nbytes for a in parts))
     deltas = [p for p in (args.map / DELTAS_DIR).rglob("*") if p.is_file()]
     dbytes = sum(p.stat().st_size for p in deltas)
-    out = {"frames": frames, "occupied_voxels": occ, "memory_arrays_bytes": mem,
-           "memory_bytes_per_occupied_voxel": mem / occ if occ else None, "delta_files": len(deltas),
+    out = {"frames": frames, "occupied_voxels": occ, "blocks": int(m.n_blocks), "ram_memory_bytes": mem,
+           "ram_memory_bytes_per_occupied_voxel": mem / occ if occ else None,
+           "ram_blocks_in_use_bytes_per_occupied_voxel": used / occ if occ else None,
+           "memory_file_bytes": (args.map / MEMORY_NAME).stat().st_size, "delta_files": len(deltas),
            "delta_store_bytes": dbytes, "delta_store_mb_per_frame": dbytes / 1e6 / max(frames, 1)}
     if args.time_log is not None:
         text = args.time_log.read_text()
