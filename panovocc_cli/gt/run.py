@@ -71,7 +71,7 @@ def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) ->
 
     from ..geometry.lattice import point_to_index
     from ..io.images import check_image_header
-    from ..io.sequence import _find, frame_stem
+    from ..io.sequence import frame_stem
 
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera {seq.meta.camera!r}: the lifted ground truth needs an ERP sequence",
@@ -85,7 +85,10 @@ def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) ->
                             seq.root)
     seq.check_files(("depth",))
     for i in annotated:
-        check_image_header(_find(seq.root / "semantic", frame_stem(i), (".png",)), "labels", seq.meta.shape)
+        path = seq.root / "semantic" / f"{frame_stem(i)}.png"
+        if not path.is_file():
+            raise PanovoccError(f"label PNG of annotated frame {i} not found (--annotated {lift.annotated})", path)
+        check_image_header(path, "labels", seq.meta.shape)
     h = float(voxel_size)
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for i in tqdm(range(n), desc="gt bounds", unit="frame", disable=not progress):

@@ -84,6 +84,11 @@ def test_annotated_frames_need_labels(seq, tmp_path, capsys):
 
     s = tmp_path / "seq"
     shutil.copytree(seq, s)
+    (s / "semantic" / "000001.png").unlink()  # only frames 0 and 2 annotated
+    rc, _, err = run(capsys, "gt", "--from-sequence", s, tmp_path / "g.npz", "--annotated", "all")
+    assert rc == 2 and "000001.png" in err and "annotated frame 1" in err and not (tmp_path / "g.npz").exists()
+    rc, _, err = run(capsys, "gt", "--from-sequence", s, tmp_path / "g0.npz", "--annotated", "0,2", "--quiet")
+    assert rc == 0, err
     shutil.rmtree(s / "semantic")
     rc, _, err = run(capsys, "gt", "--from-sequence", s, tmp_path / "g.npz")
     assert rc == 2 and "semantic/" in err and not (tmp_path / "g.npz").exists()
