@@ -8,7 +8,7 @@ DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
 DEMO := work/demo
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: setup demo test test-quick bench bench-render clean help
+.PHONY: setup demo test test-quick bench bench-render reproduce-tables clean help
 
 help:
 	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
@@ -18,6 +18,7 @@ help:
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
 	@echo "make pan-holo  the embedded Pan-Holo split: a house, realistic depth, 300 frames, lifted ground truth"
 	@echo "make gt-protocol  lifted ground truth against mesh truth (2 seeds, clean and realistic depth)"
+	@echo "make reproduce-tables [SMALL=1]  the whole benchmark (tables, figures) into results/ (SMALL: results/small/)"
 
 # Debian libraries (open3d: libgl1 libegl1 libusb-1.0-0 libgomp1; headless pyrender: libosmesa6),
 # installed only when missing and only when running as root.
@@ -53,6 +54,12 @@ bench: setup
 bench-render: setup
 	$(BIN)/panovocc synth work/bench-scene --seed 0
 	$(BIN)/python -m panovocc_cli.rendering.bench work/bench-scene --width 1024 --frames 60
+
+# The benchmark (docs/benchmark.md): a local Dask cluster of two workers; finished tasks cached in
+# work/benchmark-cache, so an interrupted run resumes. SMALL=1: a few minutes, into results/small/.
+REPRO_OUT = $(if $(SMALL),results/small,results)
+reproduce-tables: setup
+	$(BIN)/panovocc reproduce $(if $(SMALL),--small) --out $(REPRO_OUT) --cache work/benchmark-cache --overwrite
 
 clean:
 	rm -rf work $(VENV) *.egg-info

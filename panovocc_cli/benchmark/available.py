@@ -1,0 +1,43 @@
+"""What this build can run: a requirement is checked by importing it, never assumed.
+
+A requirement is a string ``module``, ``module:attr`` or ``module:Class.field`` (a dataclass field, e.g.
+``panovocc_cli.datasets.synth:SynthConfig.house``). A method or split whose requirements do not all
+import is reported as "not available in this build" with the first missing one named; nothing is run
+for it and no number is made up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from typing import Iterable
+
+
+def missing(requires: Iterable[str]) -> list[str]:
+    """The requirements of ``requires`` that this build lacks, in order (empty: all present)."""
+    return [r for r in requires if not _has(r)]
+
+
+def _has(req: str) -> bool:
+    module, _, attr = req.partition(":")
+    try:
+        obj = importlib.import_module(module)
+    except ImportError:
+        return False
+    if not attr:
+        return True
+    head, _, fld = attr.partition(".")
+    obj = getattr(obj, head, None)
+    if obj is None:
+        return False
+    if not fld:
+        return True
+    if dataclasses.is_dataclass(obj):
+        return any(f.name == fld for f in dataclasses.fields(obj))
+    return hasattr(obj, fld)
+
+
+def unavailable_reason(requires: Iterable[str]) -> str | None:
+    """``None`` when every requirement imports, else ``"not available in this build (needs X)"``."""
+    lack = missing(requires)
+    return None if not lack else f"not available in this build (needs {', '.join(lack)})"
