@@ -197,6 +197,8 @@ def upstream_table(sweep: Sweep, scores: Scores) -> Table:
             else:
                 cells += [fmt(res.iou), fmt(res.miou)]
                 ran.append(s)
+        if ("method", m.name) in sweep.unavailable:
+            notes = [sweep.unavailable[("method", m.name)]]
         source = "; ".join(([f"{MEASURED} ({', '.join(ran)})"] if ran else []) + notes) or NA
         t.rows.append([label, source] + cells)
         t.provenance.append({"row": label, "data": "; ".join(_data(sweep, s) for s in splits),
