@@ -68,7 +68,14 @@ class Method:
         return hash(self.name)
 
 
-_BASELINE_REQ = ("panovocc_cli.baselines.run:run_baseline",)
+_BASELINE_REQ = ("panovocc_cli.baselines.run:BaselineConfig", "panovocc_cli.baselines.run:run_baseline")
+
+# w/o RPU runs under the perturbation-and-correction schedule of the paper's ablation (mapping/ablation.py,
+# docs/baselines.md): seeded drift, true poses arriving as corrections every K frames. With RPU the same
+# schedule ends exactly at the true-pose map (tested there), which is why the full model's row is PanOVOcc's.
+RPU_SCHEDULE = {"rot_deg": 0.5, "trans_m": 0.02, "every": 10}
+# the upstream "drifting trajectory": odometry-style drift, never corrected (geometry/drift.py)
+DRIFT = {"trans_m_per_sqrt_frame": 0.005, "trans_m_per_m": 0.02, "rot_deg_per_frame": 0.2}
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     # --- PanOVOcc itself (main table, the ablation's full model, the upstream default rows) -------------
@@ -90,16 +97,17 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("wo-gsc", "w/o GSC", ("ablation",), options={"use_gsc": False}, components=("PSVF", "RPU"),
            note="map --no-gsc: raw argmax of the fused evidence"),
     Method("wo-rpu", "w/o RPU", ("ablation",), options={"rpu": False}, components=("PSVF", "GSC"),
-           requires=("panovocc_cli.mapping.config:MapConfig.rpu",),
+           requires=("panovocc_cli.mapping.ablation:AblationParams.use_rpu",
+                     "panovocc_cli.mapping.config:MapConfig.ablation"),
            note="pose corrections arrive but old contributions are not removed (baselines helper's flag)"),
     # --- upstream modules: poses --------------------------------------------------------------------------
     Method("poses-true", "true poses", ("upstream",), options={"poses": "true"},
            note="the renderer's poses"),
     Method("poses-slam", "SLAM front end", ("upstream",), options={"poses": "slam"},
-           requires=("panovocc_cli.slam",), note="map --poses slam (poses estimated online)"),
+           requires=("panovocc_cli.slam.run:run_map_slam",), note="map --poses slam (poses estimated online)"),
     Method("poses-drift", "drifting trajectory", ("upstream",), options={"poses": "drift"},
-           requires=("panovocc_cli.geometry.drift",),
-           note="true poses with a seeded random-walk drift (traj perturb)"),
+           requires=("panovocc_cli.geometry.drift:drift_trajectory",),
+           note="true poses with a seeded odometry-style drift, never corrected (traj perturb)"),
     # --- upstream modules: segmenter variants ----------------------------------------------------------------
     Method("seg-exact", "segmenter: exact labels", ("upstream",), options={"noise": 0.0},
            note="simulated segmenter at noise 0 (an upper bound: perfect 2D labels)"),

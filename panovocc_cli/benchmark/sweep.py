@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .methods import Method
+from .methods import DRIFT, RPU_SCHEDULE, Method
 from .splits import SCALE_SPECS, SceneSpec, Split
 from .tasks import Task, code_fingerprint
 
@@ -105,6 +105,9 @@ def _prediction(m: Method, split: Split, sc: SceneSpec, render: Task, code: str)
     opts = {**opts, "poses": poses}
     deps: tuple[Task, ...] = (render,)
     if poses == "drift":
-        deps = (render, Task("poses", {"drift": True, "seed": sc.seed + DRIFT_SEED_OFFSET}, (render,),
+        deps = (render, Task("poses", {**DRIFT, "seed": sc.seed + DRIFT_SEED_OFFSET}, (render,),
                              _label("poses", split, sc, "drift"), code))
-    return Task("map", {"options": opts, "seed": sc.seed}, deps, _label("map", split, sc, m.name), code)
+    params = {"options": opts, "seed": sc.seed}
+    if not opts["rpu"]:
+        params["schedule"] = {**RPU_SCHEDULE, "seed": sc.seed + DRIFT_SEED_OFFSET}
+    return Task("map", params, deps, _label("map", split, sc, m.name), code)

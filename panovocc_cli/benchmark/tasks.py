@@ -254,10 +254,14 @@ def _gt(p: dict, out: Path, deps: list[Path], cache: Path):
         scene = deps[0] / "scene"
         s = run_gt(GtConfig(scene=scene, out=out / "gt.npz"))
         return {"gt": "gt.npz"}, f"panovocc gt {_rel(scene, cache)} {_rel(out / 'gt.npz', cache)}", _plain(s)
-    # ground truth lifted from sparse annotations (issue 13): GtConfig(from_sequence=..., annotated=...)
+    # ground truth lifted from sparse annotations (issue 13): gt --from-sequence SEQ --annotated every:K
+    from ..gt_config import LiftParams  # type: ignore[attr-defined]
+
     seq = deps[0] / "seq"
-    s = run_gt(GtConfig(scene=None, out=out / "gt.npz", from_sequence=seq,  # type: ignore[call-arg]
-                        annotated=f"every:{p['annotate_every']}"))
+    lift = LiftParams(annotated=f"every:{p['annotate_every']}")
+    s = run_gt(GtConfig(scene=None, out=out / "gt.npz", from_sequence=seq, lift=lift,  # type: ignore[call-arg]
+                        progress=False))
+    (out / "gt.config.json").unlink(missing_ok=True)  # holds the temporary folder's paths
     return ({"gt": "gt.npz"}, f"panovocc gt --from-sequence {_rel(seq, cache)} {_rel(out / 'gt.npz', cache)} "
             f"--annotated every:{p['annotate_every']}", _plain(s))
 
@@ -275,15 +279,17 @@ def _render(p: dict, out: Path, deps: list[Path], cache: Path):
 
 def _poses(p: dict, out: Path, deps: list[Path], cache: Path):
     """A drifting trajectory: the sequence's true poses with seeded random-walk drift (geometry/drift.py)."""
-    from ..geometry import drift  # type: ignore[attr-defined]
+    from ..geometry.drift import drift_trajectory  # type: ignore[import-not-found]
     from ..io.poses import read_poses, write_poses
 
     seq = deps[0] / "seq"
-    true = read_poses(seq / "poses.txt")
-    drifted = drift.drift_trajectory(true, seed=p["seed"])  # type: ignore[attr-defined]
+    drifted = drift_trajectory(read_poses(seq / "poses.txt"), trans_m_per_sqrt_frame=p["trans_m_per_sqrt_frame"],
+                               trans_m_per_m=p["trans_m_per_m"], rot_deg_per_frame=p["rot_deg_per_frame"],
+                               seed=p["seed"])
     write_poses(out / "poses.txt", drifted)
     return ({"poses": "poses.txt"}, f"panovocc traj perturb {_rel(seq / 'poses.txt', cache)} "
-            f"{_rel(out / 'poses.txt', cache)} --seed {p['seed']}", {})
+            f"{_rel(out / 'poses.txt', cache)} --drift {p['trans_m_per_sqrt_frame']:g} --drift-per-m "
+            f"{p['trans_m_per_m']:g} --rot-drift-deg {p['rot_deg_per_frame']:g} --seed {p['seed']}", {})
 
 
 def _map(p: dict, out: Path, deps: list[Path], cache: Path):
@@ -307,27 +313,44 @@ def _map(p: dict, out: Path, deps: list[Path], cache: Path):
     sem = SemanticParams(segmenter=o["segmenter"], noise=float(o["noise"]), seed=p["seed"], use_gsc=o["use_gsc"])
     cfg = MapConfig(seq=str(seq), out=str(out / "map"), poses=None if poses is None else str(poses),
                     geometry=dataclasses.replace(GeometryParams(), kernel=o["kernel"]), semantic=sem)
-    if not o["rpu"]:
-        cfg = dataclasses.replace(cfg, rpu=False)  # type: ignore[call-arg]
-    s = run_map(cfg, progress=False)
+    flags = []
+    if not o["rpu"]:  # the ablation's perturbation-and-correction schedule, corrections without RPU (issue 12)
+        from ..mapping.ablation import AblationParams  # type: ignore[import-not-found]
+
+        sch = p["schedule"]
+        cfg = dataclasses.replace(cfg, ablation=AblationParams(  # type: ignore[call-arg]
+            use_rpu=False, drift_rot_deg=sch["rot_deg"], drift_trans_m=sch["trans_m"], drift_seed=sch["seed"],
+            correct_every=sch["every"]))
+        flags = [f"--drift-rot-deg {sch['rot_deg']:g} --drift-trans-m {sch['trans_m']:g} --drift-seed {sch['seed']} "
+                 f"--correct-every {sch['every']}"]
+    if o["poses"] == "slam":
+        from ..slam.run import run_map_slam  # type: ignore[import-not-found]
+
+        s = run_map_slam(cfg, progress=False)
+    else:
+        s = run_map(cfg, progress=False)
     # keep what the tables read (the prediction, the resolved config, the poses); drop the delta store
     for name in ("deltas",):
         shutil.rmtree(out / "map" / name, ignore_errors=True)
-    for name in ("memory.npz", "map.ply"):
+    for name in ("memory.npz", "map.ply", "slam.json", "trajectory.tum"):
         (out / "map" / name).unlink(missing_ok=True)
-    cmd = " ".join(["panovocc map", _rel(seq, cache), _rel(out / "map", cache), *map_cli_flags(o),
+    cmd = " ".join(["panovocc map", _rel(seq, cache), _rel(out / "map", cache), *map_cli_flags(o), *flags,
                     f"--seed {p['seed']}"]) + pose_flag
     keep = ("frames", "occupied", "free", "classed", "empty_frames")
     return {"prediction": "map/prediction.npz"}, cmd, {k: s[k] for k in keep if k in s}
 
 
 def _baseline(p: dict, out: Path, deps: list[Path], cache: Path):
-    from ..baselines import run as baselines_run  # type: ignore[attr-defined]
+    from ..baselines.run import BaselineConfig, run_baseline  # type: ignore[attr-defined]
 
     seq = deps[0] / "seq"
-    s = baselines_run.run_baseline(p["name"], seq, out / "out", seed=p["seed"])  # type: ignore[attr-defined]
-    cmd = f"panovocc baselines run {p['name']} {_rel(seq, cache)} {_rel(out / 'out', cache)}"
-    return {"prediction": "out/prediction.npz"}, cmd, _plain(s)
+    s = run_baseline(BaselineConfig(name=p["name"], seq=seq, out=out / "out", segmenter="simulated",  # type: ignore
+                                    seed=p["seed"], progress=False))
+    for sub in ("streams", "frames"):  # per-view / per-frame grids: not read by the tables
+        shutil.rmtree(out / "out" / sub, ignore_errors=True)
+    cmd = f"panovocc baselines run {p['name']} {_rel(seq, cache)} {_rel(out / 'out', cache)} --seed {p['seed']}"
+    keep = ("frames", "occupied", "classed", "views", "view_size")
+    return {"prediction": "out/prediction.npz"}, cmd, {k: v for k, v in _plain(s).items() if k in keep}
 
 
 def _eval(p: dict, out: Path, deps: list[Path], cache: Path):
