@@ -192,7 +192,8 @@ def upstream_table(sweep: Sweep, scores: Scores) -> Table:
             res, why = scores.pooled(s, m.name)
             if res is None:
                 cells += [NA, NA]
-                if ("split", s) not in sweep.unavailable:  # a whole missing split is said once, below
+                in_sweep = any(x.name == s for x in sweep.splits)
+                if in_sweep and ("split", s) not in sweep.unavailable:  # a missing split is said once, below
                     notes.append(f"{s}: {why}")
             else:
                 cells += [fmt(res.iou), fmt(res.miou)]
