@@ -12,7 +12,6 @@ Progress: a bar over the tasks (computed / cached / failed so far), and one line
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 from pathlib import Path
@@ -130,6 +129,7 @@ class _Bar:
     def __init__(self, total: int, cached: int, enabled: bool, log):
         self.enabled, self.log = enabled, log
         self.n = {"computed": 0, "cached": cached, "failed": 0}
+        self.seconds: dict[str, float] = {}  # compute seconds per task kind (the summary line)
         self.t0 = time.perf_counter()
         self.bar = None
         if enabled:
@@ -141,6 +141,8 @@ class _Bar:
     def update(self, t: Task, res: dict) -> None:
         st = res["status"]
         self.n[st] = self.n.get(st, 0) + 1
+        if st == "computed":
+            self.seconds[t.kind] = self.seconds.get(t.kind, 0.0) + float(res.get("seconds", 0.0))
         if self.bar is not None:
             if st == "failed":
                 self.bar.write(f"failed: {t.label}: {res['error']}", file=self.log)
@@ -152,4 +154,8 @@ class _Bar:
         if self.bar is not None:
             self.bar.close()
             print(f"tasks: {self.n['computed']} computed, {self.n['cached']} cached, {self.n['failed']} failed "
-                  f"in {time.perf_counter() - self.t0:.1f} s (pid {os.getpid()})", file=self.log, flush=True)
+                  f"in {time.perf_counter() - self.t0:.1f} s", file=self.log, flush=True)
+            if self.seconds:
+                print("task seconds by kind (summed over workers): " + ", ".join(
+                    f"{k} {v:.0f}" for k, v in sorted(self.seconds.items(), key=lambda kv: -kv[1])), file=self.log,
+                    flush=True)

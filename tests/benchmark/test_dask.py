@@ -41,8 +41,8 @@ def test_sweep_survives_a_killed_worker(tiny_sweep, tmp_path):
         stop = threading.Event()
         watcher = threading.Thread(target=_kill_first_map_worker, args=(client, cache, pids, killed, stop), daemon=True)
         watcher.start()
-        try:
-            s = reproduce(out, cache, workers=2, client=client)
+        try:  # the sweep connects to the running cluster by address (--scheduler), as a user's would
+            s = reproduce(out, cache, scheduler=cluster.scheduler_address)
         finally:
             stop.set()
             watcher.join(10)
