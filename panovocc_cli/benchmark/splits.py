@@ -94,7 +94,7 @@ class Split:
         if self.gt == "mesh":
             return [SceneSpec(f"r{k}", seed=k, rooms=1 + k % 3, frames=s.frames, width=s.width)
                     for k in range(s.scenes)]
-        return [SceneSpec(f"h{k}", seed=100 + k, rooms=None, frames=s.house_frames, width=s.house_width,
+        return [SceneSpec(f"h{k}", seed=k, rooms=None, frames=s.house_frames, width=s.house_width,
                           noise="realistic", house=True) for k in range(s.houses)]
 
     def unavailable(self) -> str | None:
