@@ -109,3 +109,40 @@ def test_reported_numbers_match_the_paper(name):
             "GT poses": "GT poses", "CAT-Seg": "CAT-Seg", "NACLIP": "NACLIP"}
     for name_, vals in reported.UPSTREAM.items():
         assert numbers(keys[name_], body) == list(vals), name_
+
+
+def test_a_failed_task_is_reported_and_retried_on_rerun(tiny_sweep, tmp_path, monkeypatch):
+    """A task that fails leaves 'failed' cells and exit status 2 after every table is written; the next run
+    computes only what failed (and what reads it), everything else comes from the cache."""
+    import shutil
+
+    from panovocc_cli.benchmark import tasks
+    from panovocc_cli.errors import PanovoccError
+
+    _, ref_cache, _ = tiny_sweep
+    cache, out = tmp_path / "cache", tmp_path / "results"
+    shutil.copytree(ref_cache, cache)
+    wo_gsc = [d for d in (cache / "map").iterdir() if "wo-gsc" in json.loads((d / "task.json").read_text())["label"]]
+    assert len(wo_gsc) == 1
+    key = json.loads((wo_gsc[0] / "task.json").read_text())["key"]
+    for d in [wo_gsc[0], *[d for kind in ("eval", "show") for d in (cache / kind).iterdir()
+                           if key in json.loads((d / "task.json").read_text())["deps"]]]:
+        shutil.rmtree(d)  # as if that map, and so what reads it, had never finished
+    events = computed_events(cache)
+    real_map = tasks.STAGES["map"]
+
+    def broken(p, out_, deps, cache_):
+        raise PanovoccError("simulated failure", out_)
+
+    monkeypatch.setitem(tasks.STAGES, "map", broken)
+    with pytest.raises(PanovoccError, match="task\\(s\\) failed"):
+        reproduce(out, cache)
+    abl = {r["variant"]: r for r in csv.DictReader((out / "ablation.csv").open())
+           if not r["source"].startswith("reported")}
+    assert abl["w/o GSC"]["source"].startswith("failed: ") and abl["w/o GSC"]["IoU"] == "-"
+    assert abl["Full model"]["source"] == "measured"  # its map was cached
+    assert not list((cache / "map").glob(".*.tmp.*"))  # the failed attempt left nothing half-written
+    monkeypatch.setitem(tasks.STAGES, "map", real_map)
+    s = reproduce(out, cache, overwrite=True)
+    new = {k: v - events.get(k, 0) for k, v in computed_events(cache).items() if v != events.get(k, 0)}
+    assert s["failed"] == [] and s["computed"] == len(new) == 3  # the map, its eval, the picture that shows it
