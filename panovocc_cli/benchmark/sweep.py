@@ -18,6 +18,7 @@ from .tasks import Task, code_fingerprint
 
 SHOW_CUT_TOP = 3
 SHOW_WIDTH_PX = 1800
+ABLATION_SPLIT = "pan-replica-synth"  # the component ablation's split (the paper's Table: Pan-Replica)
 DRIFT_SEED_OFFSET = 7919  # the drifting trajectory's seed: scene seed + this (its own stream)
 
 
@@ -75,6 +76,8 @@ def build_sweep(splits: list[Split], methods: list[Method], scale: str) -> Sweep
             for m in methods:
                 if ("method", m.name) in sw.unavailable:
                     continue
+                if set(m.groups) == {"ablation"} and split.name != ABLATION_SPLIT:
+                    continue  # the component ablation is on pan-replica-synth only, as the paper's
                 pred = _prediction(m, split, sc, render, code)
                 if pred is None:
                     continue

@@ -18,7 +18,7 @@ from typing import Callable
 from ..classes import EVAL8, OPEN4
 from . import reported
 from .methods import Method
-from .sweep import Sweep
+from .sweep import ABLATION_SPLIT, Sweep
 
 NA = "-"
 MEASURED = "measured"
@@ -152,7 +152,7 @@ def per_scene_table(sweep: Sweep, counts_of: Callable, split: str) -> Table:
     return t
 
 
-def ablation_table(sweep: Sweep, scores: Scores, split: str = "pan-replica-synth") -> Table:
+def ablation_table(sweep: Sweep, scores: Scores, split: str = ABLATION_SPLIT) -> Table:
     """Table 2: the component ablation (w/o PSVF, w/o GSC, w/o RPU, full model)."""
     header = ["variant", "source", "PSVF", "GSC", "RPU", "IoU", "mIoU"]
     t = Table("ablation", f"Component ablation on {split}", header)
