@@ -74,6 +74,7 @@ _BASELINE_REQ = ("panovocc_cli.baselines.run:BaselineConfig", "panovocc_cli.base
 # docs/baselines.md): seeded drift, true poses arriving as corrections every K frames. With RPU the same
 # schedule ends exactly at the true-pose map (tested there), which is why the full model's row is PanOVOcc's.
 RPU_SCHEDULE = {"rot_deg": 0.5, "trans_m": 0.02, "every": 10}
+SLAM_REQ = ("panovocc_cli.slam.run:run_map_slam", "panovocc_cli.mapping.config:MapConfig.poses_align")
 # the upstream "drifting trajectory": odometry-style drift, never corrected (geometry/drift.py)
 DRIFT = {"trans_m_per_sqrt_frame": 0.005, "trans_m_per_m": 0.02, "rot_deg_per_frame": 0.2}
 
@@ -98,13 +99,14 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            note="map --no-gsc: raw argmax of the fused evidence"),
     Method("wo-rpu", "w/o RPU", ("ablation",), options={"rpu": False}, components=("PSVF", "GSC"),
            requires=("panovocc_cli.mapping.ablation:AblationParams.use_rpu",
-                     "panovocc_cli.mapping.config:MapConfig.ablation"),
+                     "panovocc_cli.mapping.config:MapConfig.ablation", "panovocc_cli.geometry.drift:drift_trajectory"),
            note="pose corrections arrive but old contributions are not removed (baselines helper's flag)"),
     # --- upstream modules: poses --------------------------------------------------------------------------
     Method("poses-true", "true poses", ("upstream",), options={"poses": "true"},
            note="the renderer's poses"),
     Method("poses-slam", "SLAM front end", ("upstream",), options={"poses": "slam"},
-           requires=("panovocc_cli.slam.run:run_map_slam",), note="map --poses slam (poses estimated online)"),
+           requires=SLAM_REQ,
+           note="the SLAM front end's trajectory (map --poses slam), aligned to the true one (--poses-align se3)"),
     Method("poses-drift", "drifting trajectory", ("upstream",), options={"poses": "drift"},
            requires=("panovocc_cli.geometry.drift:drift_trajectory",),
            note="true poses with a seeded odometry-style drift, never corrected (traj perturb)"),

@@ -109,7 +109,7 @@ REPLICA = Split(
 HOLO = Split(
     name="pan-holo-synth", gt="lifted", poses="slam", classes="eval12", paper="Pan-Holo360D",
     requires=("panovocc_cli.datasets.synth:SynthConfig.house", "panovocc_cli.gt_config:GtConfig.from_sequence",
-              "panovocc_cli.slam.run:run_map_slam"),
+              "panovocc_cli.slam.run:run_map_slam", "panovocc_cli.mapping.config:MapConfig.poses_align"),
     description="multi-room houses (synth --house), realistic depth noise, SLAM poses, ground truth lifted "
                 "from sparse annotations")
 

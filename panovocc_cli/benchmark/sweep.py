@@ -108,8 +108,10 @@ def _prediction(m: Method, split: Split, sc: SceneSpec, render: Task, code: str)
     opts = {**opts, "poses": poses}
     deps: tuple[Task, ...] = (render,)
     if poses == "drift":
-        deps = (render, Task("poses", {**DRIFT, "seed": sc.seed + DRIFT_SEED_OFFSET}, (render,),
+        deps = (render, Task("poses", {"source": "drift", **DRIFT, "seed": sc.seed + DRIFT_SEED_OFFSET}, (render,),
                              _label("poses", split, sc, "drift"), code))
+    elif poses == "slam":
+        deps = (render, Task("poses", {"source": "slam"}, (render,), _label("poses", split, sc, "slam"), code))
     params = {"options": opts, "seed": sc.seed}
     if not opts["rpu"]:
         params["schedule"] = {**RPU_SCHEDULE, "seed": sc.seed + DRIFT_SEED_OFFSET}

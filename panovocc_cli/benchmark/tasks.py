@@ -278,11 +278,34 @@ def _render(p: dict, out: Path, deps: list[Path], cache: Path):
 
 
 def _poses(p: dict, out: Path, deps: list[Path], cache: Path):
-    """A drifting trajectory: the sequence's true poses with seeded random-walk drift (geometry/drift.py)."""
-    from ..geometry.drift import drift_trajectory  # type: ignore[import-not-found]
+    """Poses other than the true ones, one per frame (``poses.txt``, NICE-SLAM form).
+
+    ``source: drift``: the sequence's true poses with seeded odometry-style drift (geometry/drift.py).
+    ``source: slam``: the SLAM front end's trajectory (``map --poses slam``, slam/run.py); the map it builds
+    on the way is dropped: it lives in the first frame's world, so the benchmark maps again with these
+    poses aligned to the reference (``--poses-align se3``), the paper's protocol.
+    """
     from ..io.poses import read_poses, write_poses
 
     seq = deps[0] / "seq"
+    if p["source"] == "slam":
+        import dataclasses
+
+        from ..mapping.config import MapConfig
+        from ..slam.run import run_map_slam  # type: ignore[import-not-found]
+
+        s = run_map_slam(dataclasses.replace(MapConfig(seq=str(seq), out=str(out / "slam")), semantic=_no_semantics()),
+                         progress=False)
+        shutil.copyfile(out / "slam" / "poses.txt", out / "poses.txt")
+        for name in ("slam.json",):
+            if (out / "slam" / name).is_file():
+                shutil.copyfile(out / "slam" / name, out / name)
+        shutil.rmtree(out / "slam")
+        keep = ("frames", "track_ms_per_frame", "unplaced_frames", "slam")
+        return ({"poses": "poses.txt"}, f"panovocc map {_rel(seq, cache)} {_rel(out / 'slam', cache)} --poses slam "
+                "--segmenter none", {k: v for k, v in _plain(s).items() if k in keep})
+    from ..geometry.drift import drift_trajectory  # type: ignore[import-not-found]
+
     drifted = drift_trajectory(read_poses(seq / "poses.txt"), trans_m_per_sqrt_frame=p["trans_m_per_sqrt_frame"],
                                trans_m_per_m=p["trans_m_per_m"], rot_deg_per_frame=p["rot_deg_per_frame"],
                                seed=p["seed"])
@@ -290,6 +313,12 @@ def _poses(p: dict, out: Path, deps: list[Path], cache: Path):
     return ({"poses": "poses.txt"}, f"panovocc traj perturb {_rel(seq / 'poses.txt', cache)} "
             f"{_rel(out / 'poses.txt', cache)} --drift {p['trans_m_per_sqrt_frame']:g} --drift-per-m "
             f"{p['trans_m_per_m']:g} --rot-drift-deg {p['rot_deg_per_frame']:g} --seed {p['seed']}", {})
+
+
+def _no_semantics():
+    from ..mapping.config import SemanticParams
+
+    return SemanticParams(segmenter="none", vocab=[])
 
 
 def _map(p: dict, out: Path, deps: list[Path], cache: Path):
@@ -304,15 +333,18 @@ def _map(p: dict, out: Path, deps: list[Path], cache: Path):
     seq = deps[0] / "seq"
     poses = None
     pose_flag = ""
-    if o["poses"] == "drift":
+    align = "none"
+    if o["poses"] in ("drift", "slam"):
         poses = deps[1] / "poses.txt"
         pose_flag = f" --poses {_rel(poses, cache)}"
-    elif o["poses"] == "slam":
-        poses = "slam"
-        pose_flag = " --poses slam"
+        if o["poses"] == "slam":  # the estimated trajectory, aligned to the reference first (Umeyama SE(3))
+            align = "se3"
+            pose_flag += " --poses-align se3"
     sem = SemanticParams(segmenter=o["segmenter"], noise=float(o["noise"]), seed=p["seed"], use_gsc=o["use_gsc"])
     cfg = MapConfig(seq=str(seq), out=str(out / "map"), poses=None if poses is None else str(poses),
                     geometry=dataclasses.replace(GeometryParams(), kernel=o["kernel"]), semantic=sem)
+    if align != "none":
+        cfg = dataclasses.replace(cfg, poses_align=align)  # type: ignore[call-arg]
     flags = []
     if not o["rpu"]:  # the ablation's perturbation-and-correction schedule, corrections without RPU (issue 12)
         from ..mapping.ablation import AblationParams  # type: ignore[import-not-found]
@@ -323,16 +355,11 @@ def _map(p: dict, out: Path, deps: list[Path], cache: Path):
             correct_every=sch["every"]))
         flags = [f"--drift-rot-deg {sch['rot_deg']:g} --drift-trans-m {sch['trans_m']:g} --drift-seed {sch['seed']} "
                  f"--correct-every {sch['every']}"]
-    if o["poses"] == "slam":
-        from ..slam.run import run_map_slam  # type: ignore[import-not-found]
-
-        s = run_map_slam(cfg, progress=False)
-    else:
-        s = run_map(cfg, progress=False)
+    s = run_map(cfg, progress=False)
     # keep what the tables read (the prediction, the resolved config, the poses); drop the delta store
     for name in ("deltas",):
         shutil.rmtree(out / "map" / name, ignore_errors=True)
-    for name in ("memory.npz", "map.ply", "slam.json", "trajectory.tum"):
+    for name in ("memory.npz", "map.ply"):
         (out / "map" / name).unlink(missing_ok=True)
     cmd = " ".join(["panovocc map", _rel(seq, cache), _rel(out / "map", cache), *map_cli_flags(o), *flags,
                     f"--seed {p['seed']}"]) + pose_flag
