@@ -318,7 +318,7 @@ def _poses(p: dict, out: Path, deps: list[Path], cache: Path):
 def _no_semantics():
     from ..mapping.config import SemanticParams
 
-    return SemanticParams(segmenter="none", vocab=[])
+    return SemanticParams(segmenter="none")
 
 
 def _map(p: dict, out: Path, deps: list[Path], cache: Path):
