@@ -59,9 +59,9 @@ class ScaleSpec:
 
 
 SCALE_SPECS: dict[str, ScaleSpec] = {
-    "full": ScaleSpec(scenes=8, frames=60, width=512, houses=5, house_frames=120, house_width=512,
+    "full": ScaleSpec(scenes=8, frames=60, width=512, houses=5, house_frames=150, house_width=512,
                       annotate_every=10, coverage_every=1),
-    "small": ScaleSpec(scenes=2, frames=20, width=256, houses=1, house_frames=40, house_width=256,
+    "small": ScaleSpec(scenes=2, frames=20, width=256, houses=1, house_frames=100, house_width=256,
                        annotate_every=10, coverage_every=1),
     "tiny": ScaleSpec(scenes=1, frames=6, width=128, houses=1, house_frames=10, house_width=128,
                       annotate_every=5, coverage_every=1),
