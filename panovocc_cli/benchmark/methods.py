@@ -71,7 +71,7 @@ class Method:
 _BASELINE_REQ = ("panovocc_cli.baselines.run:BaselineConfig", "panovocc_cli.baselines.run:run_baseline")
 
 # w/o RPU runs under the perturbation-and-correction schedule of the paper's ablation (mapping/ablation.py,
-# docs/baselines.md): seeded drift, true poses arriving as corrections every K frames. With RPU the same
+# docs/baselines.md, whose measured schedule is this one): seeded drift, true poses arriving as corrections every K frames. With RPU the same
 # schedule ends exactly at the true-pose map (tested there), which is why the full model's row is PanOVOcc's.
 RPU_SCHEDULE = {"rot_deg": 0.5, "trans_m": 0.02, "every": 10}
 SLAM_REQ = ("panovocc_cli.slam.run:run_map_slam", "panovocc_cli.mapping.config:MapConfig.poses_align")
@@ -99,7 +99,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            note="map --no-gsc: raw argmax of the fused evidence"),
     Method("wo-rpu", "w/o RPU", ("ablation",), options={"rpu": False}, components=("PSVF", "GSC"),
            requires=("panovocc_cli.mapping.ablation:AblationParams.use_rpu",
-                     "panovocc_cli.mapping.config:MapConfig.ablation", "panovocc_cli.geometry.drift:drift_trajectory"),
+                     "panovocc_cli.mapping.config:MapConfig.ablation"),
            note="pose corrections arrive but old contributions are not removed (baselines helper's flag)"),
     # --- upstream modules: poses --------------------------------------------------------------------------
     Method("poses-true", "true poses", ("upstream",), options={"poses": "true"},
