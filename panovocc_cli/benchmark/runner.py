@@ -92,12 +92,14 @@ def _run_dask(todo, cache: Path, results: dict, bar: "_Bar", scheduler, workers:
                     raise PanovoccError(f"cannot reach the Dask scheduler at {scheduler} ({e})") from None
             else:
                 cluster = stack.enter_context(LocalCluster(
-                    n_workers=max(1, workers), threads_per_worker=1, processes=True, dashboard_address=None,
+                    n_workers=max(1, workers), threads_per_worker=1, processes=True, dashboard_address=":0",
                     env=dict(WORKER_ENV), silence_logs=40))
                 client = stack.enter_context(Client(cluster))
         if bar.enabled:
             n = len(client.scheduler_info().get("workers", {}))
-            print(f"dask: {n} worker(s) at {client.scheduler.address}", file=log, flush=True)
+            link = getattr(client, "dashboard_link", None)
+            print(f"dask: {n} worker(s) at {client.scheduler.address}" + (f", dashboard {link}" if link else ""),
+                  file=log, flush=True)
         futures: dict[str, Any] = {}
         by_future = {}
         for t in todo:

@@ -33,7 +33,7 @@ def test_sweep_survives_a_killed_worker(tiny_sweep, tmp_path):
 
     ref_out, _, ref = tiny_sweep
     out, cache = tmp_path / "results", tmp_path / "cache"
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, env=WORKER_ENV,
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", env=WORKER_ENV,
                       silence_logs=50) as cluster, Client(cluster) as client:
         pids = client.run(os.getpid)
         assert len(pids) == 2
