@@ -16,7 +16,7 @@ from .methods import DRIFT, RPU_SCHEDULE, Method
 from .splits import SCALE_SPECS, SceneSpec, Split
 from .tasks import Task, code_fingerprint
 
-SHOW_CUT_TOP = 3
+SHOW_CUT_TOP = 5  # voxel layers removed from the top of the common box, to look into the rooms
 SHOW_WIDTH_PX = 1800
 ABLATION_SPLIT = "pan-replica-synth"  # the component ablation's split (the paper's Table: Pan-Replica)
 DRIFT_SEED_OFFSET = 7919  # the drifting trajectory's seed: scene seed + this (its own stream)
@@ -88,7 +88,7 @@ def build_sweep(splits: list[Split], methods: list[Method], scale: str) -> Sweep
                                                       _label("coverage", split, sc), code)
             if k == 0:
                 shown = [m for m in methods if m.name in preds and {"main", "ablation"} & set(m.groups)]
-                titles = ["ground truth"] + [m.label for m in shown]
+                titles = ["ground truth"] + [m.label if len(m.label) <= 16 else m.name for m in shown]
                 sw.shows[split.name] = Task(
                     "show", {"cut_top": SHOW_CUT_TOP, "titles": titles, "width_px": SHOW_WIDTH_PX},
                     (gt, *[preds[m.name] for m in shown]), _label("show", split, sc), code)

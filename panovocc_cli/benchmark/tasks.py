@@ -37,9 +37,11 @@ from ..errors import PanovoccError
 TASK_FILE = "task.json"
 EVENTS = "_events/computed"
 KINDS = ("synth", "gt", "render", "poses", "map", "baseline", "eval", "coverage", "show")
-# modules whose text changes no task output (tables, the runner, the command line): left out of the key
-_NOT_IN_FINGERPRINT = ("cli/", "benchmark/tables.py", "benchmark/reported.py", "benchmark/run.py",
-                       "benchmark/runner.py")
+# modules whose text changes no task output: the command line, and the benchmark's graph building, tables and
+# runner (a task's output is a function of its kind, params and inputs, run by the stages below and the
+# library; what the graph puts in the params is in the key already). Left out of the key.
+_NOT_IN_FINGERPRINT = ("cli/", "benchmark/")
+_IN_FINGERPRINT = ("benchmark/tasks.py",)
 
 
 def _canonical(obj: Any) -> str:
@@ -50,8 +52,8 @@ def _canonical(obj: Any) -> str:
 def code_fingerprint() -> str:
     """SHA-256 (hex) of the package version and the source of every module a task can run.
 
-    Every ``panovocc_cli/**/*.py`` except the command line and the benchmark's own table/runner
-    modules (:data:`_NOT_IN_FINGERPRINT`), by relative path and content.
+    Every ``panovocc_cli/**/*.py`` except the command line and the benchmark package other than its stage
+    functions (:data:`_NOT_IN_FINGERPRINT`), by relative path and content.
     """
     from .. import __version__
 
@@ -59,7 +61,7 @@ def code_fingerprint() -> str:
     h = hashlib.sha256(f"panovocc {__version__}\n".encode())
     for p in sorted(root.rglob("*.py")):
         rel = p.relative_to(root).as_posix()
-        if rel.startswith(_NOT_IN_FINGERPRINT):
+        if rel.startswith(_NOT_IN_FINGERPRINT) and rel not in _IN_FINGERPRINT:
             continue
         h.update(rel.encode() + b"\0" + p.read_bytes() + b"\0")
     return h.hexdigest()
