@@ -6,6 +6,8 @@ Specs (``--segmenter``):
   model ``MODEL`` (``calibrated``, the default, ``overconfident`` or ``raw``; see
   :data:`.simulated.CONFIDENCE_MODELS`). It reads labels through the ``label_source`` it is built with.
 * ``precomputed:DIR``: per-frame scores another model wrote (:mod:`.precomputed`).
+* ``clip`` or ``clip:MODEL@WEIGHTS[,options]`` / ``clip:FOLDER[,options]``: the training-free dense CLIP
+  segmenter (NACLIP's recipe) on tiles of the panorama (:mod:`.clip`; optional extra ``.[clip]``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from .segmenter import Segmenter
 
 SIMULATED = "simulated"
 PRECOMPUTED = "precomputed:"
+CLIP = "clip"
 
 
 def build_segmenter(spec: str = SIMULATED, *, seed: int = DEFAULT_SEED, noise: float = 1.0,
@@ -27,7 +30,7 @@ def build_segmenter(spec: str = SIMULATED, *, seed: int = DEFAULT_SEED, noise: f
     Parameters
     ----------
     spec : str
-        ``simulated[:MODEL]`` or ``precomputed:DIR`` (see the module docstring).
+        ``simulated[:MODEL]``, ``precomputed:DIR`` or ``clip[...]`` (see the module docstring).
     seed : int
         Seed of the simulated segmenter's noise (frame ``i`` uses ``default_rng([seed, i])``).
     noise : float
@@ -39,8 +42,8 @@ def build_segmenter(spec: str = SIMULATED, *, seed: int = DEFAULT_SEED, noise: f
     Raises
     ------
     PanovoccError
-        For an unknown spec or confidence model, a negative noise level, or a precomputed folder that
-        fails validation.
+        For an unknown spec or confidence model, a negative noise level, a precomputed folder that
+        fails validation, or a clip spec whose weights are not on disk (one line saying how to provide them).
     """
     s = spec.strip()
     if s == SIMULATED or s.startswith(SIMULATED + ":"):
@@ -60,8 +63,12 @@ def build_segmenter(spec: str = SIMULATED, *, seed: int = DEFAULT_SEED, noise: f
         if not folder:
             raise PanovoccError("segmenter 'precomputed:' needs a folder, e.g. precomputed:runs/seg")
         return PrecomputedSegmenter(folder)
-    raise PanovoccError(f"unknown segmenter {spec!r}: expected 'simulated', 'simulated:overconfident' or "
-                        "'precomputed:DIR'")
+    if s == CLIP or s.startswith(CLIP + ":") or s.startswith(CLIP + ","):
+        from .clip import ClipSegmenter
+
+        return ClipSegmenter(s)
+    raise PanovoccError(f"unknown segmenter {spec!r}: expected 'simulated', 'simulated:overconfident', "
+                        "'precomputed:DIR' or 'clip[:MODEL@WEIGHTS]'")
 
 
 def is_simulated(spec: str) -> bool:
