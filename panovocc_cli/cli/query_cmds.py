@@ -1,0 +1,283 @@
+"""``query`` (a finished map asked in words) and ``relabel`` (its grid under a new vocabulary).
+
+The maths is :mod:`panovocc_cli.semantics.query`; ``run_query`` / ``run_relabel`` here open the map folder
+(``Mapper.load``: memory.npz, config.json), call it and write the outputs, and are usable from Python.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import typer
+
+from ..config import option, validate_config
+from ..errors import PanovoccError
+from ..semantics.query import (DEFAULT_MARGIN, DEFAULT_MIN_SIMILARITY, DEFAULT_RELABEL_SIMILARITY,
+                               DEFAULT_TEMPERATURE, TEXT_MODEL)
+from ._app import app
+from .options import OptionValues, config_command
+
+QUERY_OUTPUTS = (".json", ".ply", ".png")
+#: Colours of query pictures and point clouds: voxels that do not match, and the score ramp's ends.
+OTHER_COLOR = (170, 170, 170)
+MATCH_LOW, MATCH_HIGH = (255, 210, 60), (200, 20, 20)
+
+
+@dataclass
+class QueryConfig:
+    """Options of ``panovocc query``."""
+
+    map_dir: Path = option(argument=True, metavar="OUT", help="Map folder written by panovocc map (config.json, "
+                           "memory.npz).")
+    text: str = option(argument=True, metavar="TEXT", help="What to look for, in words, e.g. 'a place to sleep'.")
+    top: int = option(5, min=1, max=1000, help="Number of clusters listed (best first).")
+    out: Path | None = option(None, help="Also write the answer: .json (classes, clusters, best voxels), .ply "
+                              "(occupied voxels, matches coloured by score) or .png (top view with boxes).")
+    min_voxels: int = option(3, min=1, help="Smallest cluster reported, in voxels.")
+    min_similarity: float = option(DEFAULT_MIN_SIMILARITY, min=-1.0, max=1.0, help="Text cosine a class needs "
+                                   "to match the query.")
+    margin: float = option(DEFAULT_MARGIN, min=0.0, max=2.0, help="Matched classes lie within this cosine of the "
+                           "best class.")
+    temperature: float = option(DEFAULT_TEMPERATURE, min=1e-3, max=10.0, help="Softmax temperature (cosine units) "
+                                "of the matched classes' weights.")
+    overwrite: bool = option(False, help="Replace an existing --out file (never an input).")
+
+
+@dataclass
+class RelabelConfig:
+    """Options of ``panovocc relabel``."""
+
+    map_dir: Path = option(argument=True, metavar="OUT", help="Map folder written by panovocc map.")
+    out_npz: Path = option(argument=True, metavar="NEW.npz", help="Grid to write (CONVENTIONS.md grid .npz).")
+    vocab: str = option(help="New vocabulary: words, comma-separated; NAME=old1+old2 merges stored classes "
+                        "explicitly (e.g. 'bed,seating=chair+sofa,floor,wall').")
+    min_similarity: float = option(DEFAULT_RELABEL_SIMILARITY, min=-1.0, max=1.0, help="Text cosine a stored class "
+                                   "needs to its most similar new word to go to it.")
+    overwrite: bool = option(False, help="Replace an existing NEW.npz (never an input).")
+
+
+def _load_map(map_dir: Path):
+    from ..io import mapstore
+    from ..mapping.mapper import Mapper
+
+    map_dir = Path(map_dir)
+    if not map_dir.is_dir():
+        raise PanovoccError("map folder not found", map_dir)
+    mapstore.read_map_config(map_dir)  # one-line error when it is not a map folder
+    if not (map_dir / mapstore.MEMORY_NAME).is_file():
+        raise PanovoccError(f"no {mapstore.MEMORY_NAME} (the map run has not saved its memory yet)", map_dir)
+    return Mapper.load(map_dir)
+
+
+def run_query(cfg: QueryConfig, encode=None) -> dict:
+    """Answer ``cfg.text`` on the map in ``cfg.map_dir``; write ``cfg.out`` when given.
+
+    Parameters
+    ----------
+    cfg : QueryConfig
+    encode : TextEncoder or None (the packaged MiniLM, :func:`semantics.query.minilm_encoder`)
+
+    Returns
+    -------
+    dict (JSON-able): ``query``, ``text_model``, ``match`` (similarity per class, matched classes with
+    weights), ``voxels`` (matching voxels), ``clusters`` (the best ``top``, :meth:`Cluster.to_json`) and
+    ``best_voxels`` (up to 20 centres in metres with their scores), ``seconds``
+    """
+    from ..geometry.lattice import index_to_center, unpack_keys
+    from ..io.atomic import check_output
+    from ..semantics.query import class_distribution, find_clusters, match_classes, minilm_encoder, voxel_scores
+
+    t0 = time.perf_counter()
+    cfg = validate_config(cfg)
+    if cfg.out is not None:
+        if Path(cfg.out).suffix.lower() not in QUERY_OUTPUTS:
+            raise PanovoccError(f"--out must end in {', '.join(QUERY_OUTPUTS)}", cfg.out)
+        check_output(cfg.out, "query", cfg.overwrite, inputs=[cfg.map_dir], folder=False)
+    mapper = _load_map(cfg.map_dir)
+    try:
+        vocab = list(mapper.config.vocab)
+        if not vocab:
+            raise PanovoccError("the map has no semantic evidence (mapped with --segmenter none): it cannot be "
+                                "queried by words", Path(cfg.map_dir) / "config.json")
+        ex = mapper.export()
+        h = mapper.config.geometry.voxel_size
+    finally:
+        mapper.close()
+    encode = encode or minilm_encoder()
+    match = match_classes(cfg.text, vocab, encode, min_similarity=cfg.min_similarity, margin=cfg.margin,
+                          temperature=cfg.temperature)
+    labels = ex.labels
+    p = class_distribution(ex.channels["E"], ex.channels["S"], labels)
+    scores = voxel_scores(p, match.weights)
+    import numpy as np
+
+    mask = np.isin(labels, match.matched) if len(match.matched) else np.zeros(len(labels), bool)
+    clusters = find_clusters(ex.occupied_keys, mask, scores, labels, vocab, h, cfg.min_voxels)
+    best = np.flatnonzero(mask)[np.argsort(-scores[mask], kind="stable")][:20]
+    centres = index_to_center(unpack_keys(ex.occupied_keys[best]), h)
+    result = {"query": match.query, "map": str(cfg.map_dir), "text_model": TEXT_MODEL, "vocabulary": vocab,
+              "match": match.to_json(), "voxels": int(mask.sum()), "clusters_total": len(clusters),
+              "clusters": [c.to_json() for c in clusters[:cfg.top]],
+              "best_voxels": [{"centre_m": [round(float(x), 4) for x in c], "score": round(float(s), 4),
+                               "class": vocab[int(lab)]} for c, s, lab in zip(centres, scores[best], labels[best])]}
+    if cfg.out is not None:
+        _write_query_output(cfg, result, ex, h, scores, mask, clusters[:cfg.top])
+    result["seconds"] = round(time.perf_counter() - t0, 3)
+    return result
+
+
+def _score_colors(s):
+    import numpy as np
+
+    t = np.clip(np.asarray(s, np.float64), 0.0, 1.0)[:, None]
+    return np.rint(np.array(MATCH_LOW) * (1 - t) + np.array(MATCH_HIGH) * t).astype(np.uint8)
+
+
+def _write_query_output(cfg: QueryConfig, result: dict, ex, h: float, scores, mask, clusters) -> None:
+    import numpy as np
+
+    from ..geometry.lattice import index_to_center, unpack_keys
+    from ..io.atomic import output_file, write_text
+    from ..io.runconfig import config_path_beside, write_run_config
+
+    out = Path(cfg.out)
+    suffix = out.suffix.lower()
+    pts = index_to_center(unpack_keys(ex.occupied_keys), h)
+    cols = np.tile(np.array(OTHER_COLOR, np.uint8), (len(pts), 1))
+    cols[mask] = _score_colors(scores[mask])
+    with output_file(out):
+        if suffix == ".json":
+            write_text(out, json.dumps(result, indent=2) + "\n")
+        elif suffix == ".ply":
+            from ..io.ply import write_ply_points
+
+            write_ply_points(out, pts, cols)
+        else:
+            from ..io.figures import write_png
+
+            write_png(_top_view(pts, cols, mask, clusters, result), out)
+    write_run_config(config_path_beside(out), cfg)
+
+
+def _top_view(pts, cols, mask, clusters, result):
+    """A matplotlib figure: occupied voxels seen from above (highest voxel per column), matches coloured by
+    score, the listed clusters' boxes numbered."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import numpy as np
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
+    fig = Figure(figsize=(8, 8))
+    ax = fig.add_subplot(1, 1, 1)
+    order = np.lexsort((pts[:, 2], mask))  # matches over everything else; higher voxels over lower ones
+    ax.scatter(pts[order, 0], pts[order, 1], c=cols[order] / 255.0, s=4, marker="s", linewidths=0)
+    for k, c in enumerate(result["clusters"], 1):
+        (x0, y0, _), (x1, y1, _) = c["bbox_min_m"], c["bbox_max_m"]
+        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="black", linewidth=1.5))
+        ax.text(x0, y1, f" {k}", va="bottom", ha="left", fontsize=11, weight="bold")
+    matched = ", ".join(f"{m['class']} {m['similarity']:.2f}" for m in result["match"]["matched"]) or "no class"
+    ax.set_title(f"\"{result['query']}\" -> {matched}", fontsize=11)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return fig
+
+
+def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
+    """Write the map's grid under a new vocabulary its stored evidence supports.
+
+    The stored evidence ``E (n, C_old)`` becomes ``E @ M`` (:func:`semantics.query.relabel_matrix`), and the
+    map's own export (occupancy rule, GSC, nearest-evidence transfer) labels the occupied voxels with the
+    new words. Returns a summary: ``vocab``, ``sources`` per new word, ``classed`` voxels per new word.
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from ..classes import canonical_name
+    from ..io.atomic import check_output, output_file
+    from ..io.grid import write_grid
+    from ..io.runconfig import config_path_beside, write_run_config
+    from ..mapping.export import export_memory
+    from ..semantics.query import minilm_encoder, parse_relabel_vocab, relabel_matrix
+
+    cfg = validate_config(cfg)
+    if Path(cfg.out_npz).suffix.lower() != ".npz":
+        raise PanovoccError("output must be a .npz grid", cfg.out_npz)
+    check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=[cfg.map_dir], folder=False)
+    new = parse_relabel_vocab(cfg.vocab)
+    mapper = _load_map(cfg.map_dir)
+    try:
+        stored = list(mapper.config.vocab)
+        if not stored:
+            raise PanovoccError("the map has no semantic evidence (mapped with --segmenter none)",
+                                Path(cfg.map_dir) / "config.json")
+        needs_text = any(not olds and w not in {canonical_name(s) for s in stored} for w, olds in new)
+        if needs_text and encode is None:
+            encode = minilm_encoder()
+        M, sources = relabel_matrix(stored, new, encode, cfg.min_similarity)
+        keys, ch = mapper.memory.nonzero()
+        ch = dict(ch)
+        ch["E"] = np.asarray(ch["E"], np.int64) @ M
+        words = [w for w, _ in new]
+        mcfg = dataclasses.replace(mapper.config, vocab=words)
+        ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, words, mcfg)
+    finally:
+        mapper.close()
+    with output_file(cfg.out_npz):
+        write_grid(cfg.out_npz, ex.grid)
+    write_run_config(config_path_beside(cfg.out_npz), cfg)
+    counts = np.bincount(ex.labels[ex.labels >= 0], minlength=len(words)) if ex.labels is not None else np.zeros(len(words))
+    return {"vocab": words, "sources": {w: [[s, c] for s, c in v] for w, v in sources.items()},
+            "classed": {w: int(n) for w, n in zip(words, counts)}, "occupied": int(len(ex.occupied_keys))}
+
+
+def format_query(res: dict) -> str:
+    """The query's one-screen summary."""
+    m = res["match"]
+    lines = [f"query: \"{res['query']}\" on {res['map']} (text model {res['text_model']})"]
+    sims = sorted(m["similarity"].items(), key=lambda t: -t[1])
+    if m["matched"]:
+        lines.append("matched classes: " + ", ".join(f"{x['class']} (cosine {x['similarity']:.2f}, weight "
+                                                      f"{x['weight']:.2f})" for x in m["matched"]))
+    else:
+        lines.append("no class of the map's vocabulary matches (best: " + ", ".join(
+            f"{k} {v:.2f}" for k, v in sims[:3]) + "); try one of: " + ", ".join(res["vocabulary"]))
+        return "\n".join(lines)
+    lines.append(f"{res['voxels']} matching voxels in {res['clusters_total']} clusters; the best "
+                 f"{len(res['clusters'])}:")
+    lines.append(f"{'#':>3} {'voxels':>7} {'score':>6}  {'centroid (m)':<22} {'size (m)':<18} classes")
+    for k, c in enumerate(res["clusters"], 1):
+        cen = ", ".join(f"{x:.2f}" for x in c["centroid_m"])
+        size = " x ".join(f"{x:.2f}" for x in c["size_m"])
+        cls = ", ".join(f"{n} {v}" for n, v in c["classes"].items())
+        lines.append(f"{k:>3} {c['voxels']:>7} {c['score_mean']:>6.2f}  {cen:<22} {size:<18} {cls}")
+    return "\n".join(lines)
+
+
+@config_command(app, QueryConfig, "query")
+def query(o: OptionValues, as_json: bool = typer.Option(False, "--json", help="Print the answer as one JSON "
+                                                                               "object instead of a summary.")) -> None:
+    """Find what a free-text query names in a finished map: matched classes, voxels, clusters with boxes."""
+    res = run_query(QueryConfig(**o))
+    typer.echo(json.dumps(res) if as_json else format_query(res))
+    if o["out"] is not None and not as_json:
+        typer.echo(f"wrote {o['out']}")
+
+
+@config_command(app, RelabelConfig, "relabel")
+def relabel(o: OptionValues) -> None:
+    """Write a finished map's grid under a new vocabulary its stored evidence supports (merges, synonyms)."""
+    res = run_relabel(RelabelConfig(**o))
+    for w in res["vocab"]:
+        src = ", ".join(f"{s}" + ("" if c == 1.0 else f" ({c:.2f})") for s, c in res["sources"][w])
+        typer.echo(f"{w:<16} <- {src:<40} {res['classed'][w]:>7} voxels")
+    typer.echo(f"wrote {o['out_npz']} ({res['occupied']} occupied voxels)")
+
+
+__all__ = ["QueryConfig", "RelabelConfig", "run_query", "run_relabel", "format_query"]
