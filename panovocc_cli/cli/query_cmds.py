@@ -158,33 +158,40 @@ def _write_query_output(cfg: QueryConfig, result: dict, ex, h: float, scores, ma
         else:
             from ..io.figures import write_png
 
-            write_png(_top_view(pts, cols, mask, clusters, result), out)
+            write_png(_top_view(pts, cols, mask, clusters, result, h), out)
     write_run_config(config_path_beside(out), cfg)
 
 
-def _top_view(pts, cols, mask, clusters, result):
-    """A matplotlib figure: occupied voxels seen from above (highest voxel per column), matches coloured by
-    score, the listed clusters' boxes numbered."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+def _top_view(pts, cols, mask, clusters, result, h):
+    """A matplotlib figure: the occupied voxels seen from above, one pixel per voxel column (grey; a column
+    holding a match takes the colour of its best-scoring match), the listed clusters' boxes numbered."""
     import numpy as np
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 
-    fig = Figure(figsize=(8, 8))
+    ij = np.floor(pts[:, :2] / h).astype(np.int64)
+    i0 = ij.min(axis=0)
+    ij -= i0
+    nx, ny = ij.max(axis=0) + 1
+    img = np.full((ny, nx, 3), 255, np.uint8)
+    img[ij[:, 1], ij[:, 0]] = OTHER_COLOR
+    order = np.flatnonzero(mask)
+    order = order[np.argsort(cols[order, 1].astype(np.int64) * -1, kind="stable")]  # best score (least green) last
+    img[ij[order, 1], ij[order, 0]] = cols[order]
+    x0, y0 = i0 * h
+    width_in = 9.0
+    fig = Figure(figsize=(width_in, max(3.0, width_in * ny / nx + 1.0)))
     ax = fig.add_subplot(1, 1, 1)
-    order = np.lexsort((pts[:, 2], mask))  # matches over everything else; higher voxels over lower ones
-    ax.scatter(pts[order, 0], pts[order, 1], c=cols[order] / 255.0, s=4, marker="s", linewidths=0)
+    ax.imshow(img, origin="lower", extent=(x0, x0 + nx * h, y0, y0 + ny * h), interpolation="nearest")
     for k, c in enumerate(result["clusters"], 1):
-        (x0, y0, _), (x1, y1, _) = c["bbox_min_m"], c["bbox_max_m"]
-        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="black", linewidth=1.5))
-        ax.text(x0, y1, f" {k}", va="bottom", ha="left", fontsize=11, weight="bold")
+        (bx0, by0, _), (bx1, by1, _) = c["bbox_min_m"], c["bbox_max_m"]
+        ax.add_patch(Rectangle((bx0, by0), bx1 - bx0, by1 - by0, fill=False, edgecolor="black", linewidth=1.5))
+        ax.text(bx0, by1, f" {k}", va="bottom", ha="left", fontsize=11, weight="bold")
     matched = ", ".join(f"{m['class']} {m['similarity']:.2f}" for m in result["match"]["matched"]) or "no class"
-    ax.set_title(f"\"{result['query']}\" -> {matched}", fontsize=11)
-    ax.set_aspect("equal")
+    ax.set_title(f"\"{result['query']}\" -> {matched} (top view, boxes: best clusters)", fontsize=11)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
+    fig.tight_layout()
     return fig
 
 
