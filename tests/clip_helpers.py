@@ -56,3 +56,35 @@ def register_tiny_config(folder) -> str:
     if TINY_NAME not in open_clip.list_models():
         open_clip.add_model_config(path)
     return TINY_NAME
+
+
+def smooth_erp(height: int, seed: int = 0):
+    """A (height, 2 height, 3) uint8 panorama of a few smooth colour blobs (a CPU/CUDA comparison image whose
+    argmax regions are large, unlike noise)."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:height, 0:2 * height] / height
+    img = np.zeros((height, 2 * height, 3))
+    for _ in range(6):
+        cu, cv, r = rng.random() * 2, rng.random(), 0.1 + 0.3 * rng.random()
+        img += rng.random(3) * np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * r * r))[..., None]
+    return np.clip(255 * img / img.max(), 0, 255).astype(np.uint8)
+
+
+def cpu_cuda_difference(spec_cpu: str, spec_cuda: str, rgb, vocab) -> dict:
+    """Logits of one frame through two clip specs (e.g. ``...,device=cpu`` and ``...,device=cuda``): the largest
+    absolute difference (logit units: 40 x cosine), the share of pixels whose argmax agrees, and CPU seconds."""
+    import time
+
+    import numpy as np
+
+    from panovocc_cli.semantics.registry import build_segmenter
+
+    a_seg, b_seg = build_segmenter(spec_cpu), build_segmenter(spec_cuda)
+    a = a_seg.logits(rgb, vocab)
+    b_seg.logits(rgb, vocab)  # warm-up (CUDA context, kernels, text features)
+    t = time.perf_counter()
+    b = b_seg.logits(rgb, vocab)
+    return {"max_abs_diff": float(np.abs(a - b).max()), "argmax_agree": float((a.argmax(-1) == b.argmax(-1)).mean()),
+            "seconds_second_device": time.perf_counter() - t, "shape": list(a.shape)}

@@ -47,7 +47,8 @@ class SemanticParams:
     """Semantic part of a map's configuration (saved in ``OUT/config.json``).
 
     segmenter : ``auto`` (simulated when the sequence has labels, else an error), ``simulated``,
-        ``precomputed:DIR`` or ``none`` (geometry only: every occupied voxel 254)
+        ``precomputed:DIR``, ``clip[...]`` (:mod:`semantics.clip`) or ``none`` (geometry only: every occupied
+        voxel 254)
     vocab : vocabulary spec (``eval8,open4``, ``a,b,c``; None = eval8 + open4) before :func:`resolve`,
         the list of canonical names after it
     noise, seed : the simulated segmenter's noise level (0 = exact) and seed
@@ -57,7 +58,8 @@ class SemanticParams:
     """
 
     segmenter: str = option(SEGMENTER_AUTO, show_default=False,
-                            help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | none "
+                            help="Semantic segmenter: simulated (from SEQ/semantic/ labels) | precomputed:DIR | "
+                                 "clip[:MODEL@WEIGHTS | :FOLDER][,options] (dense CLIP, docs/semantics.md) | none "
                                  "(geometry only, occupied voxels 254). Default: simulated when SEQ has labels, else "
                                  "you must choose.")
     vocab: object = option(None, cli_type=str, help="Vocabulary chosen at run time: class names and sets, comma- or "
