@@ -523,7 +523,8 @@ class ClipSegmenter(Segmenter):
             raise PanovoccError(f"expected an RGB image (H, W, 3) uint8, got {rgb.dtype} {rgb.shape}")
         if self.cfg.rig == "none":
             n = self.tile_size()
-            return self.net.logits_images([rgb], vocab, (n, 2 * n) if rgb.shape[1] == 2 * rgb.shape[0] else (n, n))[0]
+            wide = abs(rgb.shape[1] - 2 * rgb.shape[0]) <= 2  # a panorama (or a strided one)
+            return self.net.logits_images([rgb], vocab, (n, 2 * n) if wide else (n, n))[0]
         if self._tiled is None:
             from .tiling import TiledSegmenter, tiling_rig
 

@@ -108,7 +108,9 @@ class ErpTiler:
     ----------
     rig : ViewRig, pinhole views sharing the panorama's centre (``R_cam_view``: view axes in the
         panorama's camera frame)
-    width : int, ERP width in pixels (height = width / 2)
+    width : int, ERP width in pixels
+    height : int or None, ERP height (None: width / 2). Any size is an equirectangular grid of longitude x
+        latitude (a panorama subsampled by a stride that does not divide it is not exactly 2:1)
     feather : float in (0, 1], the outer fraction of each view's half-width (in tangent space,
         ``max(|x/z|, |y/z|)``) over which its blending weight falls linearly from 1 to 0
 
@@ -119,15 +121,20 @@ class ErpTiler:
         pixel, weight (n,) float64 normalised so that every ERP pixel's weights sum to 1)``
     """
 
-    def __init__(self, rig: ViewRig, width: int, feather: float = DEFAULT_FEATHER):
-        from ..geometry.erp import check_erp_size, project, ray_directions
+    def __init__(self, rig: ViewRig, width: int, feather: float = DEFAULT_FEATHER, height: int | None = None):
+        from ..geometry.erp import angles_to_ray, check_erp_size, pixel_to_angles, project
 
         if not 0.0 < feather <= 1.0:
             raise PanovoccError(f"tile feather {feather}; expected in (0, 1]")
         if len(rig) == 0:
             raise PanovoccError("a tiling rig needs at least one view")
         self.rig = rig
-        self.width, self.height = check_erp_size(width)
+        if height is None:
+            self.width, self.height = check_erp_size(width)
+        else:
+            self.width, self.height = int(width), int(height)
+            if self.width < 2 or self.height < 1:
+                raise PanovoccError(f"panorama of {self.width}x{self.height} pixels is too small to tile")
         us, vs = [], []
         for view in rig:
             rays_cam = view.camera.rays() @ view.R_cam_view.T  # view pixel rays, panorama frame
@@ -136,7 +143,9 @@ class ErpTiler:
             vs.append(v)
         self.erp_u, self.erp_v = np.stack(us), np.stack(vs)
 
-        rays = ray_directions(self.width, self.height).reshape(-1, 3)  # ERP pixel rays, panorama frame
+        theta, phi = pixel_to_angles(np.arange(self.width)[None, :], np.arange(self.height)[:, None], self.width,
+                                     self.height)
+        rays = angles_to_ray(*np.broadcast_arrays(theta, phi)).reshape(-1, 3)  # ERP pixel rays, panorama frame
         n_pix = len(rays)
         raw = []
         total = np.zeros(n_pix)
@@ -240,20 +249,22 @@ class TiledSegmenter(Segmenter):
         self.rig = rig
         self.feather = float(feather)
         self.spec = getattr(inner, "spec", "")
-        self._tilers: dict[int, ErpTiler] = {}
+        self._tilers: dict[tuple[int, int], ErpTiler] = {}
 
-    def tiler(self, width: int) -> ErpTiler:
-        """The (cached) :class:`ErpTiler` for ERP frames ``width`` pixels wide."""
-        if width not in self._tilers:
-            self._tilers[width] = ErpTiler(self.rig, width, self.feather)
-        return self._tilers[width]
+    def tiler(self, width: int, height: int | None = None) -> ErpTiler:
+        """The (cached) :class:`ErpTiler` for ERP frames of ``width`` x ``height`` (default width / 2) pixels."""
+        key = (int(width), int(height if height is not None else width // 2))
+        if key not in self._tilers:
+            self._tilers[key] = ErpTiler(self.rig, key[0], self.feather, height=key[1])
+        return self._tilers[key]
 
     def logits(self, rgb: np.ndarray, vocab: Sequence[str], *, frame_id=None) -> np.ndarray:
         """ERP logits ``(H, W, C)`` float32 (see :class:`~.segmenter.Segmenter`); ``frame_id`` is passed on."""
         rgb = np.asarray(rgb)
-        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[1] != 2 * rgb.shape[0]:
-            raise PanovoccError(f"expected an ERP colour image (H, 2H, 3), got shape {rgb.shape}")
-        tiler = self.tiler(rgb.shape[1])
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or abs(rgb.shape[1] - 2 * rgb.shape[0]) > 2:
+            raise PanovoccError(f"expected an ERP colour image (H, 2H, 3) (a strided one within 2 pixels of "
+                                f"2:1), got shape {rgb.shape}")
+        tiler = self.tiler(rgb.shape[1], rgb.shape[0])
         views = tiler.split(rgb)
         batch = getattr(self.inner, "logits_views", None)
         if batch is not None:

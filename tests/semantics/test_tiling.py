@@ -101,6 +101,20 @@ def test_split_samples_the_panorama_along_each_view_ray():
         assert np.abs(img.astype(float) / 127.5 - 1.0 - rays).max() < 0.06
 
 
+def test_a_strided_panorama_that_is_not_exactly_2_to_1():
+    """The map loop hands the segmenter rgb[::s, ::s]; H = 4, s = 3 gives 2 x 3 pixels from 4 x 8. Any
+    longitude x latitude grid is tiled with its own pixel centres."""
+    from panovocc_cli.geometry.erp import angles_to_ray, pixel_to_angles
+
+    h, w = 33, 67
+    th, ph = pixel_to_angles(np.arange(w)[None, :], np.arange(h)[:, None], w, h)
+    d = angles_to_ray(*np.broadcast_arrays(th, ph))
+    rgb = np.clip(np.floor(127.5 * (d + 1.0) + 0.5), 0, 255).astype(np.uint8)
+    out = TiledSegmenter(DirectionSegmenter(), tiling_rig("cube", 32)).logits(rgb, list("abcdef"))
+    assert out.shape == (h, w, 6)
+    assert np.abs(out - GAIN * d @ AXES.T).max() < 0.1
+
+
 def test_bad_inputs():
     seg = TiledSegmenter(DirectionSegmenter(), tiling_rig("cube", 16))
     with pytest.raises(PanovoccError):
