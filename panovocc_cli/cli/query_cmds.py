@@ -66,7 +66,11 @@ def _load_map(map_dir: Path):
     map_dir = Path(map_dir)
     if not map_dir.is_dir():
         raise PanovoccError("map folder not found", map_dir)
-    mapstore.read_map_config(map_dir)  # one-line error when it is not a map folder
+    from ..io.atomic import is_output_of_kind
+
+    mapstore.read_map_config(map_dir)  # one-line error when there is no readable config.json
+    if not is_output_of_kind(map_dir, "map"):
+        raise PanovoccError("not a panovocc map folder (its config.json is not a map run's)", map_dir)
     if not (map_dir / mapstore.MEMORY_NAME).is_file():
         raise PanovoccError(f"no {mapstore.MEMORY_NAME} (the map run has not saved its memory yet)", map_dir)
     return Mapper.load(map_dir)
