@@ -49,8 +49,8 @@ def map_cmd(
             raise PanovoccError("map needs SEQ and OUT (or --resume OUT)")
         if "segmenter" not in (o.given | from_file) and not (Path(seq) / "semantic").is_dir() and (Path(seq) / "meta.json").is_file():
             raise PanovoccError(f"{seq} has no ground-truth labels (semantic/) for the default simulated "
-                                "segmenter: pass --segmenter clip (a CLIP model), --segmenter precomputed:DIR, or --segmenter none "
-                                "(geometry only)")
+                                "segmenter: pass --segmenter clip (a CLIP model), --segmenter precomputed:DIR, or "
+                                "--segmenter none (geometry only)")
         cfg = build_config(MapConfig, o, geometry=build_config(GeometryParams, o),
                            occupancy=build_config(OccupancyParams, o), semantic=build_config(SemanticParams, o),
                            ablation=build_config(AblationParams, o))
