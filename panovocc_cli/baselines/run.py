@@ -122,6 +122,9 @@ def run_baseline(cfg: BaselineConfig) -> dict:
 
     cfg = validate_config(cfg)
     box = parse_box(cfg.box)
+    if cfg.gt is not None and cfg.name != "single-pano":
+        raise PanovoccError(f"--gt scores single-pano's frames in their own boxes; score {cfg.name} with "
+                            f"panovocc eval {cfg.out}/prediction.npz GT.npz")
     seq = Sequence(cfg.seq, cfg.poses)
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera is {seq.meta.camera!r}; the baselines read panoramic (erp) sequences",

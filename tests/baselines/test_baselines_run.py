@@ -179,6 +179,7 @@ def test_single_pano_frames_and_per_frame_scores(room, tmp_path, cli):
     (["single-pano", "{t}/nosuch", "{t}/o"], "not found"),
     (["single-pano", "{room}", "{t}/o", "--gt", "{t}/no.npz"], "not found"),
     (["persp-tsdf", "{room}", "{room}"], "input"),
+    (["forward-only", "{room}", "{t}/o", "--gt", "{room}/meta.json"], "panovocc eval"),
 ])
 def test_bad_inputs_write_nothing(room, tmp_path, cli, argv, expect):
     before = sorted(p.name for p in room.rglob("*"))
