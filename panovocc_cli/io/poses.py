@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config import MATCH_MAX_DIFF
 from ..errors import PanovoccError
 from ..geometry.poses import check_rigid, quat_to_rot, rot_to_quat
 from .atomic import write_text
@@ -39,6 +40,20 @@ def read_poses(path: str | Path) -> np.ndarray:
     -------
     T_world_cam : (N, 4, 4) float64, each checked rigid.
     """
+    return read_trajectory(path)[1]
+
+
+def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """Read a trajectory with its timestamps.
+
+    Returns
+    -------
+    stamps : (N,) float64
+        TUM: the file's first column (seconds, or frame indices as ``write_tum`` writes them);
+        NICE-SLAM: the line's position 0 .. N-1 (a frame index).
+    T_world_cam : (N, 4, 4) float64, each checked rigid
+    form : ``"tum"`` or ``"nice-slam"``
+    """
     path = Path(path)
     rows = _rows(path)
     width = len(rows[0][1])
@@ -46,7 +61,7 @@ def read_poses(path: str | Path) -> np.ndarray:
         raise PanovoccError(
             f"line {rows[0][0]}: {width} numbers; expected 16 (T_world_cam row-major, NICE-SLAM form) "
             "or 8 (TUM form: t tx ty tz qx qy qz qw)", path)
-    poses = []
+    poses, stamps = [], []
     for n, parts in rows:
         if len(parts) != width:
             raise PanovoccError(f"line {n}: {len(parts)} numbers, expected {width} like line {rows[0][0]}", path)
@@ -63,8 +78,43 @@ def read_poses(path: str | Path) -> np.ndarray:
             T = np.eye(4)
             T[:3, :3] = quat_to_rot(q)
             T[:3, 3] = vals[1:4]
+            if not np.isfinite(vals[0]):
+                raise PanovoccError(f"line {n}: timestamp {parts[0]} is not a finite number", path)
+        stamps.append(vals[0] if width == 8 else float(len(stamps)))
         poses.append(check_rigid(T, what=f"{path}: line {n}"))
-    return np.stack(poses)
+    return np.array(stamps, np.float64), np.stack(poses), ("tum" if width == 8 else "nice-slam")
+
+
+def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | None = None) -> np.ndarray:
+    """One pose per frame of a sequence from a trajectory file, timestamps matched to frames.
+
+    A NICE-SLAM file must hold exactly ``n_frames`` poses (line ``i`` = frame ``i``). A TUM file's
+    timestamps are matched to the frames' (``stamps``, default the frame indices 0 .. n-1, as
+    ``write_tum`` writes them) by nearest time within ``max_diff`` (default
+    :data:`panovocc_cli.config.MATCH_MAX_DIFF`); extra poses are ignored, and a frame
+    without a pose is an error listing the first such frames.
+
+    Returns
+    -------
+    T_world_cam : (n_frames, 4, 4) float64
+    """
+    path = Path(path)
+    t, T, form = read_trajectory(path)
+    if form == "nice-slam":
+        if len(T) != n_frames:
+            raise PanovoccError(f"{len(T)} poses for {n_frames} frames (NICE-SLAM form: one line a frame)", path)
+        return T
+    frame_t = np.arange(n_frames, dtype=np.float64) if stamps is None else np.asarray(stamps, np.float64)
+    ia, ib = match_timestamps(frame_t, t, MATCH_MAX_DIFF if max_diff is None else max_diff)
+    if len(ia) < n_frames:
+        missing = sorted(set(range(n_frames)) - set(ia.tolist()))
+        shown = ", ".join(map(str, missing[:8])) + (", ..." if len(missing) > 8 else "")
+        raise PanovoccError(f"no pose within {MATCH_MAX_DIFF if max_diff is None else max_diff} of the timestamps "
+                            f"of {len(missing)} of {n_frames} frames ({shown}); TUM timestamps are matched to "
+                            "frame indices 0..N-1", path)
+    out = np.empty((n_frames, 4, 4))
+    out[ia] = T[ib]
+    return out
 
 
 def format_poses(T_world_cam: np.ndarray) -> str:
@@ -86,3 +136,33 @@ def write_tum(path: str | Path, T_world_cam: np.ndarray, timestamps=None) -> Non
         q = rot_to_quat(T[:3, :3])
         lines.append(" ".join(repr(float(x)) for x in [t, *T[:3, 3], *q]) + "\n")
     write_text(path, "".join(lines))
+
+
+def match_timestamps(stamps_a, stamps_b, max_diff: float = MATCH_MAX_DIFF) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of matched timestamps: each of ``stamps_a`` paired with the nearest of ``stamps_b`` within
+    ``max_diff`` (evo's ``matching_time_indices``: a tie goes to the earlier stamp; unmatched are dropped).
+
+    Parameters
+    ----------
+    stamps_a, stamps_b : (n,), (m,) float, seconds (or frame indices)
+
+    Returns
+    -------
+    ia, ib : (k,) int64 indices into ``stamps_a`` and ``stamps_b``
+    """
+    a = np.asarray(stamps_a, np.float64)
+    b = np.asarray(stamps_b, np.float64)
+    if b.size == 0 or a.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if not np.all(np.diff(b) >= 0):
+        order = np.argsort(b, kind="stable")
+        ia, ib = match_timestamps(a, b[order], max_diff)
+        return ia, order[ib]
+    j = np.clip(np.searchsorted(b, a, side="right"), 0, len(b) - 1)
+    ub = b[j] - a
+    lb = np.where(j > 0, a - b[np.maximum(j - 1, 0)], np.inf)
+    take_ub = (ub <= max_diff) & (ub < lb)
+    take_lb = ~take_ub & (lb <= max_diff) & (lb <= ub)
+    ok = (take_ub | take_lb) & (a >= b[0] - max_diff) & (a <= b[-1] + max_diff)
+    ib = np.where(take_ub, j, j - 1)
+    return np.nonzero(ok)[0].astype(np.int64), ib[ok].astype(np.int64)

@@ -1,0 +1,205 @@
+"""Trajectory accuracy: Umeyama alignment, absolute trajectory error (ATE) and relative pose error (RPE).
+
+The numbers are those evo 1.38.1 computes (``evo_ape`` / ``evo_rpe`` with the translation part, and the
+rotation angle in degrees), so results can be compared with published tables; the tests check them
+against evo's own Python API.
+
+* Alignment (:func:`umeyama`, :func:`align_trajectory`): the estimated positions are mapped onto the
+  reference ones by the least-squares rigid (``se3``) or similarity (``sim3``) transform of Umeyama
+  (1991); ``none`` leaves them. As in evo, a Sim(3) alignment scales the estimate's translations and
+  then applies the rigid part: ``T_aligned_i = [R | t] · [R_i | s t_i]``.
+* ATE (:func:`ate_errors`): ``‖t_est_i − t_ref_i‖`` after alignment, metres.
+* RPE (:func:`rpe_errors`): for pairs ``(i, i + delta)`` of consecutive frames, the error pose
+  ``E = (Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)`` (Q reference, P estimate); its translation norm in metres and its
+  rotation angle in degrees.
+* Statistics (:func:`error_stats`): rmse, mean, median, std (population), min, max, sse.
+
+All poses are ``T_world_cam`` (n, 4, 4) float64. Maths only: no files, no printing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import PanovoccError
+
+ALIGNMENTS = ("se3", "sim3", "none")
+"""Alignment of an estimated trajectory to its reference before ATE."""
+
+
+def umeyama(src, dst, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991; evo's ``umeyama_alignment``).
+
+    Parameters
+    ----------
+    src, dst : (n, 3) float, metres
+        Corresponding points (estimated and reference positions).
+    with_scale : bool
+        Estimate the scale ``s`` (Sim(3)); otherwise ``s = 1`` (SE(3)).
+
+    Returns
+    -------
+    R : (3, 3) float64, rotation; t : (3,) float64, metres; s : float
+
+    Raises
+    ------
+    PanovoccError
+        When the points are too few or degenerate (all on a line or a point): no unique rotation.
+    """
+    x = np.asarray(src, np.float64)
+    y = np.asarray(dst, np.float64)
+    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3:
+        raise PanovoccError(f"alignment: expected two (n, 3) point sets, got {x.shape} and {y.shape}")
+    n = x.shape[0]
+    mx, my = x.mean(0), y.mean(0)
+    xc, yc = x - mx, y - my
+    var_x = float(np.sum(xc * xc)) / n
+    cov = yc.T @ xc / n
+    U, d, Vt = np.linalg.svd(cov)
+    if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
+        raise PanovoccError(f"alignment: the {n} positions are degenerate (on one line or one point); "
+                            "use --align none or a trajectory that turns")
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(d) @ S) / var_x) if with_scale else 1.0
+    t = my - s * R @ mx
+    return R, t, s
+
+
+def apply_sim3(T_world_cam, R, t, s: float = 1.0) -> np.ndarray:
+    """Poses (n, 4, 4) moved by the similarity ``(R, t, s)``: ``[R | t] · [R_i | s t_i]`` (float64)."""
+    T = np.array(T_world_cam, np.float64, copy=True)
+    T[:, :3, 3] *= s
+    A = np.eye(4)
+    A[:3, :3], A[:3, 3] = R, t
+    return A @ T
+
+
+def align_trajectory(T_est, T_ref, mode: str = "se3") -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Align an estimated trajectory to a reference of the same length.
+
+    Parameters
+    ----------
+    T_est, T_ref : (n, 4, 4) float, T_world_cam
+    mode : ``se3`` | ``sim3`` | ``none``
+
+    Returns
+    -------
+    T_aligned : (n, 4, 4) float64; R : (3, 3); t : (3,) metres; s : float (1 unless sim3)
+    """
+    T_est, T_ref = _pair(T_est, T_ref)
+    if mode not in ALIGNMENTS:
+        raise PanovoccError(f"alignment must be one of {', '.join(ALIGNMENTS)}, got {mode!r}")
+    if mode == "none":
+        return T_est.copy(), np.eye(3), np.zeros(3), 1.0
+    R, t, s = umeyama(T_est[:, :3, 3], T_ref[:, :3, 3], with_scale=mode == "sim3")
+    return apply_sim3(T_est, R, t, s), R, t, s
+
+
+def _pair(T_est, T_ref) -> tuple[np.ndarray, np.ndarray]:
+    T_est = np.asarray(T_est, np.float64)
+    T_ref = np.asarray(T_ref, np.float64)
+    for T, what in ((T_est, "estimate"), (T_ref, "reference")):
+        if T.ndim != 3 or T.shape[1:] != (4, 4):
+            raise PanovoccError(f"trajectory {what}: expected (n, 4, 4) poses, got shape {T.shape}")
+    if len(T_est) != len(T_ref):
+        raise PanovoccError(f"trajectories have {len(T_est)} and {len(T_ref)} poses; match them first")
+    if len(T_est) == 0:
+        raise PanovoccError("trajectories are empty (no matched poses)")
+    return T_est, T_ref
+
+
+def ate_errors(T_est, T_ref) -> np.ndarray:
+    """(n,) float64 metres: position error of each (already aligned) pose."""
+    T_est, T_ref = _pair(T_est, T_ref)
+    return np.linalg.norm(T_est[:, :3, 3] - T_ref[:, :3, 3], axis=1)
+
+
+def rotation_angle(R) -> np.ndarray:
+    """(...,) float64 radians in [0, π]: the angle of rotations (..., 3, 3)."""
+    R = np.asarray(R, np.float64)
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    return np.arctan2(np.linalg.norm(w, axis=-1) / 2.0, c)
+
+
+def rpe_errors(T_est, T_ref, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Relative pose errors over pairs ``(i, i + delta)``, ``i = 0, delta, 2 delta, ...`` (evo's consecutive pairs).
+
+    Returns
+    -------
+    trans_m : (m,) float64, metres; rot_deg : (m,) float64, degrees
+    """
+    T_est, T_ref = _pair(T_est, T_ref)
+    if int(delta) < 1:
+        raise PanovoccError(f"RPE delta must be >= 1 frame, got {delta}")
+    i = np.arange(0, len(T_est) - delta, delta)
+    j = i + delta
+    Q = np.linalg.inv(T_ref[i]) @ T_ref[j]
+    P = np.linalg.inv(T_est[i]) @ T_est[j]
+    E = np.linalg.inv(Q) @ P
+    return np.linalg.norm(E[:, :3, 3], axis=1), np.rad2deg(rotation_angle(E[:, :3, :3]))
+
+
+def error_stats(err) -> dict:
+    """evo's statistics of an error array: rmse, mean, median, std, min, max, sse (NaN when empty)."""
+    e = np.asarray(err, np.float64)
+    if e.size == 0:
+        return {k: float("nan") for k in ("rmse", "mean", "median", "std", "min", "max")} | {"sse": 0.0}
+    return {"rmse": float(np.sqrt(np.mean(e * e))), "mean": float(np.mean(e)), "median": float(np.median(e)),
+            "std": float(np.std(e)), "min": float(np.min(e)), "max": float(np.max(e)), "sse": float(np.sum(e * e))}
+
+
+@dataclass
+class TrajectoryResult:
+    """The accuracy of one estimated trajectory (evo's ``Result`` in spirit: data, not text).
+
+    Attributes
+    ----------
+    align : str, the alignment used; rotation (3, 3), translation (3,) metres, scale : the alignment
+    pairs : int, matched poses compared
+    ate : dict of error_stats, metres; rpe_trans : dict, metres; rpe_rot_deg : dict, degrees
+    rpe_delta : int, frames between the poses of an RPE pair
+    ate_errors : (pairs,) float64 metres; T_est_aligned : (pairs, 4, 4) float64
+    """
+
+    align: str
+    rotation: np.ndarray
+    translation: np.ndarray
+    scale: float
+    pairs: int
+    ate: dict
+    rpe_trans: dict
+    rpe_rot_deg: dict
+    rpe_delta: int
+    ate_errors: np.ndarray = field(repr=False)
+    T_est_aligned: np.ndarray = field(repr=False)
+
+    def summary(self) -> dict:
+        """JSON-ready numbers (no arrays)."""
+        return {"align": self.align, "pairs": self.pairs, "scale": self.scale,
+                "rotation": self.rotation.tolist(), "translation_m": self.translation.tolist(),
+                "ate_m": self.ate, "rpe_m": self.rpe_trans, "rpe_deg": self.rpe_rot_deg, "rpe_delta": self.rpe_delta}
+
+
+def evaluate_trajectory(T_est, T_ref, align: str = "se3", delta: int = 1) -> TrajectoryResult:
+    """ATE after alignment and RPE of an estimate against a reference with matched poses.
+
+    Parameters
+    ----------
+    T_est, T_ref : (n, 4, 4) float, T_world_cam, pose ``i`` of each at the same time
+    align : ``se3`` | ``sim3`` | ``none``
+    delta : frames between the poses of an RPE pair
+
+    RPE is computed on the aligned estimate (a Sim(3) alignment rescales relative motions too).
+    """
+    T_al, R, t, s = align_trajectory(T_est, T_ref, align)
+    e = ate_errors(T_al, T_ref)
+    rt, rr = rpe_errors(T_al, T_ref, delta)
+    return TrajectoryResult(align=align, rotation=R, translation=t, scale=s, pairs=len(e), ate=error_stats(e),
+                            rpe_trans=error_stats(rt), rpe_rot_deg=error_stats(rr), rpe_delta=int(delta),
+                            ate_errors=e, T_est_aligned=T_al)

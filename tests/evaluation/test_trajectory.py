@@ -1,0 +1,109 @@
+"""evaluation/trajectory.py and io/poses.py's timestamp matching against evo 1.38.1's own numbers."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from panovocc_cli.errors import PanovoccError
+from panovocc_cli.evaluation.trajectory import (align_trajectory, error_stats, evaluate_trajectory, rotation_angle,
+                                                umeyama)
+from panovocc_cli.geometry.drift import drift_trajectory, so3_exp
+from panovocc_cli.io.poses import frame_poses, match_timestamps, read_trajectory, write_poses, write_tum
+
+evo = pytest.importorskip("evo")
+from evo.core import metrics, sync  # noqa: E402
+from evo.core.trajectory import PoseTrajectory3D  # noqa: E402
+
+
+def _helix(n=60):
+    t = np.linspace(0, 3, n)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, 3] = np.stack([np.cos(t) * 2, np.sin(t) * 1.5, 0.3 * t], 1)
+    T[:, :3, :3] = so3_exp(np.stack([0.1 * np.sin(t), 0.05 * t, t], 1))
+    return T
+
+
+def _evo(T_est, T_ref, align):
+    ref = PoseTrajectory3D(poses_se3=list(T_ref), timestamps=np.arange(len(T_ref), dtype=float))
+    est = PoseTrajectory3D(poses_se3=list(T_est), timestamps=np.arange(len(T_est), dtype=float))
+    est = copy.deepcopy(est)
+    if align != "none":
+        est.align(ref, correct_scale=align == "sim3")
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, 1, metrics.Unit.frames, all_pairs=False)
+    rpe.process_data((ref, est))
+    rot = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, 1, metrics.Unit.frames, all_pairs=False)
+    rot.process_data((ref, est))
+    return ape.get_all_statistics(), rpe.get_all_statistics(), rot.get_all_statistics(), np.stack(est.poses_se3)
+
+
+@pytest.mark.parametrize("align", ["se3", "sim3", "none"])
+def test_ate_and_rpe_equal_evo(align):
+    T_ref = _helix()
+    T_est = drift_trajectory(T_ref, trans_m_per_sqrt_frame=0.01, rot_deg_per_frame=0.4, seed=2)
+    if align == "sim3":  # a scaled, moved estimate: Sim(3) must undo the scale
+        T_est[:, :3, 3] *= 0.8
+    T_est = np.einsum("ij,njk->nik", np.block([[so3_exp([0, 0, 0.5]), np.array([[1.0], [2.0], [0.5]])],
+                                               [np.zeros((1, 3)), np.ones((1, 1))]]), T_est)
+    res = evaluate_trajectory(T_est, T_ref, align=align)
+    ape, rpe, rot, est_aligned = _evo(T_est, T_ref, align)
+    for k in ("rmse", "mean", "median", "std", "min", "max", "sse"):
+        assert res.ate[k] == pytest.approx(ape[k], rel=1e-9, abs=1e-12), k
+        assert res.rpe_trans[k] == pytest.approx(rpe[k], rel=1e-9, abs=1e-12), k
+        assert res.rpe_rot_deg[k] == pytest.approx(rot[k], rel=1e-6, abs=1e-7), k
+    assert np.allclose(res.T_est_aligned, est_aligned, atol=1e-10)
+    if align == "sim3":
+        assert res.scale == pytest.approx(1 / 0.8, rel=0.05)
+
+
+def test_umeyama_recovers_a_known_similarity():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(40, 3))
+    R = so3_exp([0.3, -0.2, 1.1])
+    y = 2.5 * x @ R.T + [1, -2, 3]
+    R2, t2, s2 = umeyama(x, y, with_scale=True)
+    assert np.allclose(R2, R) and np.allclose(t2, [1, -2, 3]) and s2 == pytest.approx(2.5)
+    with pytest.raises(PanovoccError, match="degenerate"):
+        umeyama(np.outer(np.arange(5.0), [1, 0, 0]), np.outer(np.arange(5.0), [0, 1, 0]))
+
+
+def test_exact_estimate_has_zero_error_and_alignment_modes_checked():
+    T = _helix(20)
+    res = evaluate_trajectory(T, T, "se3")
+    assert res.ate["rmse"] < 1e-12 and res.rpe_trans["max"] < 1e-12 and res.rpe_rot_deg["max"] < 1e-5
+    with pytest.raises(PanovoccError, match="alignment"):
+        align_trajectory(T, T, "bogus")
+    with pytest.raises(PanovoccError, match="poses"):
+        evaluate_trajectory(T[:5], T)
+    assert rotation_angle(so3_exp([0, 0, np.pi - 1e-3])) == pytest.approx(np.pi - 1e-3)
+    assert np.isnan(error_stats([])["rmse"])
+
+
+def test_match_timestamps_equals_evo():
+    rng = np.random.default_rng(5)
+    a = np.sort(rng.uniform(0, 10, 80))
+    b = np.sort(np.concatenate([a[::2] + rng.normal(0, 0.004, 40), rng.uniform(-1, 12, 30)]))
+    for d in (0.001, 0.01, 0.3):
+        ia, ib = match_timestamps(a, b, d)
+        ea, eb = sync.matching_time_indices(a, b, d)
+        assert ia.tolist() == ea and ib.tolist() == eb
+
+
+def test_tum_and_nice_slam_read_with_timestamps(tmp_path):
+    T = _helix(12)
+    write_tum(tmp_path / "a.tum", T[::2], timestamps=np.arange(0, 12, 2) + 0.003)
+    write_tum(tmp_path / "all.tum", T[[3, 0, 1, 2, 5, 4, 7, 6, 8, 9, 10, 11]],
+              timestamps=[3, 0, 1, 2, 5, 4, 7, 6, 8, 9, 10, 11])
+    write_poses(tmp_path / "nice.txt", T)
+    t, P, form = read_trajectory(tmp_path / "a.tum")
+    assert form == "tum" and np.allclose(t, np.arange(0, 12, 2) + 0.003)
+    assert np.allclose(frame_poses(tmp_path / "all.tum", 12), T, atol=1e-9)  # order does not matter
+    assert np.array_equal(frame_poses(tmp_path / "nice.txt", 12), T)
+    with pytest.raises(PanovoccError, match="6 of 12 frames"):
+        frame_poses(tmp_path / "a.tum", 12)
+    assert np.allclose(frame_poses(tmp_path / "a.tum", 6, stamps=np.arange(0, 12, 2)), T[::2], atol=1e-9)
+    with pytest.raises(PanovoccError, match="11 poses for 12"):
+        write_poses(tmp_path / "short.txt", T[:11])
+        frame_poses(tmp_path / "short.txt", 12)
