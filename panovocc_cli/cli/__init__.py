@@ -22,8 +22,8 @@ from ._app import app
 # Importing a module registers its commands on ``app``, in the order --help lists them. They are
 # imported by load_commands(), after runtime.setup(): their config dataclasses (the options' single
 # declaration) live in modules that import numba, which reads its settings when first imported.
-COMMAND_MODULES = ("data_cmds", "views_cmds", "map_cmds", "eval_cmds", "holo_cmds", "demo_cmds", "baselines_cmds",
-                   "reproduce_cmds", "query_cmds")
+COMMAND_MODULES = ("data_cmds", "views_cmds", "map_cmds", "eval_cmds", "holo_cmds", "traj_cmds", "demo_cmds",
+                   "baselines_cmds", "reproduce_cmds", "query_cmds")
 
 
 def version() -> None:

@@ -586,6 +586,20 @@ CASES = [
                                                        write(t / "c.json", '{"kernal": "point"}'), *Q], "kernal"),
     C("baselines", "map-config-resume", lambda b, t: ["map", "--resume", map_copy(b, t), "--config",
                                                       write(t / "c.json", "{}"), *Q], "--config"),
+    # --- trajectories (traj eval / perturb; --poses slam)
+    C("traj", "eval-missing-est", lambda b, t: ["traj", "eval", t / "no.txt", b / "seq" / "poses.txt"], "not found"),
+    C("traj", "eval-bad-line", lambda b, t: ["traj", "eval", poses_file(t, "1 2 3\n"), b / "seq" / "poses.txt"],
+      "expected 16"),
+    C("traj", "eval-no-match",
+      lambda b, t: ["traj", "eval", write(t / "e.tum", "".join(f"{100 + i} 0 0 0 0 0 0 1\n" for i in range(4))),
+                    b / "seq" / "poses.txt"], "match"),
+    C("traj", "eval-plot-exists",
+      lambda b, t: ["traj", "eval", map_poses(b), b / "seq" / "poses.txt", "--align", "none",
+                    "--plot", write(t / "p.png", "x")], "overwrite"),
+    C("traj", "perturb-negative", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", t / "o.txt",
+                                                "--drift", "-1"], "--drift"),
+    C("traj", "perturb-onto-input", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", b / "seq" / "poses.txt"],
+      "input"),
 ]
 
 
