@@ -11,7 +11,7 @@ from ..errors import PanovoccError
 from ..mapping.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
 from ..mapping.ablation import AblationParams
-from ..mapping.config import MapConfig, ReviseConfig, SegevalConfig, SemanticParams
+from ..mapping.config import POSES_SLAM, MapConfig, ReviseConfig, SegevalConfig, SemanticParams
 from ._app import app
 from .options import OptionValues, build_config, config_command
 
@@ -54,7 +54,12 @@ def map_cmd(
         cfg = build_config(MapConfig, o, geometry=build_config(GeometryParams, o),
                            occupancy=build_config(OccupancyParams, o), semantic=build_config(SemanticParams, o),
                            ablation=build_config(AblationParams, o))
-        summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
+        if cfg.poses == POSES_SLAM:  # poses estimated online (slam/run.py); SEQ/poses.txt is never read
+            from ..slam.run import run_map_slam
+
+            summary = run_map_slam(cfg, overwrite=overwrite, progress=not quiet)
+        else:
+            summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
     classed = f", {summary['classed']} with a class" if "classed" in summary else ""
     if "corrected" in summary:
         classed += f", {summary['corrected']} pose corrections applied"
@@ -62,6 +67,14 @@ def map_cmd(
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
                f"(update {summary['update_ms_per_frame']:.1f} ms{seg}): {summary['occupied']} occupied{classed}, "
                f"{summary['free']} free voxels -> {summary['out']}")
+    if "slam" in summary:
+        sl = summary["slam"]
+        unplaced = sl["unplaced_frames"]
+        shown = ", ".join(map(str, unplaced[:10])) + (", ..." if len(unplaced) > 10 else "")
+        typer.echo(f"slam: {sl['placed']} of {sl['frames']} frames placed, {sl['track_ms_per_frame']:.1f} ms/frame, "
+                   f"{sl['keyframes']} keyframes, {len(sl['loop_closures'])} loop closures, "
+                   f"{len(sl['relocalised_frames'])} relocalised"
+                   + (f"; could not place {len(unplaced)} frame(s): {shown}" if unplaced else ""))
     empty = summary.get("empty_frames") or []
     if empty:
         shown = ", ".join(map(str, empty[:10])) + (", ..." if len(empty) > 10 else "")

@@ -26,6 +26,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 FORMAT_VERSION = 3  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule
 
+POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 SEGMENTER_NONE = "none"
 SEGMENTER_AUTO = "auto"
 PLY_COLORS = ("class", "rgb", "height")
@@ -118,7 +119,14 @@ class MapConfig:
     out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT", cli_optional=True,
                       help="Output folder for the memory, prediction.npz and map.ply.")
     poses: str | None = option(None, cli_type=Path, parse=str,
-                               help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt.")
+                               help="Pose file (NICE-SLAM, or TUM with timestamps matched to frame indices), or "
+                                    "'slam' to estimate the poses online (SEQ/poses.txt is then never read); "
+                                    "default SEQ/poses.txt.")
+    poses_align: str = option("none", choices=("none", "se3", "sim3"),
+                              help="Align the --poses file to a reference trajectory first (Umeyama): none | se3 | "
+                                   "sim3.")
+    poses_reference: str | None = option(None, cli_type=Path, parse=str,
+                                         help="Reference trajectory of --poses-align; default SEQ/poses.txt.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
     geometry: GeometryParams = field(default_factory=GeometryParams)
     occupancy: OccupancyParams = field(default_factory=OccupancyParams)
@@ -153,6 +161,7 @@ class MapConfig:
             o = _typed(OccupancyParams, d["occupancy"])
             s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
+                       poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
                        checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
                        semantic=s, ablation=AblationParams.from_json(d.get("ablation")))

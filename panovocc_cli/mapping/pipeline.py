@@ -36,10 +36,10 @@ from ..io import mapstore
 from ..io.atomic import check_output, clean_temporaries
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
-from ..io.poses import read_poses, write_poses
+from ..io.poses import frame_poses, read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
-from .config import MapConfig, ReviseConfig, SemanticParams
+from .config import POSES_SLAM, MapConfig, ReviseConfig, SemanticParams
 from .export import point_colors
 from .mapper import Mapper, MapperConfig
 
@@ -172,8 +172,35 @@ def write_exports(out: Path, mapper: Mapper, ply_color: str) -> dict:
 # map
 
 
+def run_poses(cfg: MapConfig) -> np.ndarray | None:
+    """The run's poses (n, 4, 4) float64, or None when the sequence's own ``poses.txt`` is read as it is.
+
+    ``--poses FILE``: one pose per frame (io/poses.py ``frame_poses``: NICE-SLAM line i = frame i, TUM
+    timestamps matched to frame indices), aligned to ``poses_reference`` (default SEQ/poses.txt) by
+    ``poses_align`` (Umeyama se3/sim3). ``--poses slam``: identity placeholders (the front end places the
+    frames; SEQ/poses.txt is never read).
+    """
+    meta = Path(cfg.seq) / "meta.json"
+    if not meta.is_file():
+        return None  # Sequence says what is wrong
+    n = read_meta(cfg.seq).frames
+    if cfg.poses == POSES_SLAM:
+        return np.tile(np.eye(4), (n, 1, 1))
+    if cfg.poses is None and cfg.poses_align == "none":
+        return None
+    poses = frame_poses(cfg.poses if cfg.poses is not None else Path(cfg.seq) / "poses.txt", n)
+    if cfg.poses_align != "none":
+        from ..evaluation.trajectory import align_trajectory
+
+        ref = frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
+        poses = align_trajectory(poses, ref, cfg.poses_align)[0]
+    return poses
+
+
 def _open_sequence(cfg: MapConfig, poses: np.ndarray | None = None) -> Sequence:
-    seq = Sequence(cfg.seq, cfg.poses, poses)
+    if poses is None:
+        poses = run_poses(cfg)
+    seq = Sequence(cfg.seq, None if cfg.poses == POSES_SLAM else cfg.poses, poses)
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera {seq.meta.camera!r}: the mapper supports ERP sequences only",
                             Path(cfg.seq) / "meta.json")
@@ -194,12 +221,14 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
     cfg = dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride),
                               semantic=dataclasses.replace(cfg.semantic, weights=weights),
                               seq=str(Path(cfg.seq).resolve()), out=str(Path(cfg.out).resolve()),
-                              poses=None if cfg.poses is None else str(Path(cfg.poses).resolve()))
+                              poses=cfg.poses if cfg.poses in (None, POSES_SLAM) else str(Path(cfg.poses).resolve()),
+                              poses_reference=None if cfg.poses_reference is None
+                              else str(Path(cfg.poses_reference).resolve()))
     MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy).check()
     return cfg
 
 
-_OUTPUTS = (CONFIG_NAME, MEMORY_NAME, "poses.txt", "prediction.npz", "map.ply")
+_OUTPUTS = (CONFIG_NAME, MEMORY_NAME, "poses.txt", "prediction.npz", "map.ply", "trajectory.tum", "slam.json")
 
 
 def _check_inputs(cfg: MapConfig, seq: Sequence) -> None:
@@ -261,7 +290,7 @@ def _remove_unless_started(out: Path) -> None:
 
 
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
-            progress: bool = True, stop_after: int | None = None) -> dict:
+            progress: bool = True, stop_after: int | None = None, pose_source=None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
 
     Parameters
@@ -270,6 +299,11 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
     resume_out : output folder of an interrupted run; its config.json supplies everything else
     overwrite : replace an existing map output in ``cfg.out``
     stop_after : stop after this many frames as if killed there (no final save; tests of ``--resume``)
+    pose_source : for ``cfg.poses == "slam"``: a callable ``(Sequence) -> source`` whose ``source(i, frame)``
+        returns ``(T_world_cam (4, 4) or None, revisions [(frame id, T_world_cam)])`` for each frame in order
+        (slam/run.py). A frame it cannot place (None) is integrated as an empty observation at the last
+        placed pose (so every frame has an id and a line in OUT/poses.txt) and listed in ``unplaced_frames``;
+        each revision is applied at once with ``Mapper.revise``.
 
     Returns
     -------
@@ -278,15 +312,18 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         observations)
     """
     with contextlib.ExitStack() as held:  # the folder lock (io/lock.py), taken once the folder is known
-        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held)
+        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source)
 
 
-def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack) -> dict:
+def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
         cfg = load_config(out)
         check_resumable(cfg.ablation, out / CONFIG_NAME)
+        if cfg.poses == POSES_SLAM:
+            raise PanovoccError("a --poses slam run cannot be resumed (the tracker's state is not saved); start over "
+                                "with --overwrite", out)
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if (out / MEMORY_NAME).is_file():
@@ -304,12 +341,16 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
         cfg = validate_config(cfg)
+        if (cfg.poses == POSES_SLAM) != (pose_source is not None):
+            raise PanovoccError("--poses slam needs a pose source (panovocc map, or slam.run.run_map_slam)"
+                                if pose_source is None else "a pose source is only used with --poses slam")
         seq = _open_sequence(cfg)
         cfg = resolve(cfg, seq.meta.width)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
         frames = sequence_frames(cfg, seq)  # builds the segmenter: fails before any file is written
         out = Path(cfg.out)
-        check_output(out, "map", overwrite, inputs=(cfg.seq, cfg.poses))
+        check_output(out, "map", overwrite, inputs=(cfg.seq, None if cfg.poses == POSES_SLAM else cfg.poses,
+                                                    cfg.poses_reference))
         _check_inputs(cfg, seq)  # every frame present with the right size and type, before the first write
         if not (out.exists() or out.is_symlink()):  # a run that fails before config.json leaves nothing behind
             held.callback(_remove_unless_started, out)
@@ -324,27 +365,44 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             shutil.rmtree(out / mapstore.DELTAS_DIR, ignore_errors=True)
         out.mkdir(parents=True, exist_ok=True)
         mapstore.write_map_config(out, cfg.to_json())
-        write_poses(out / "poses.txt", seq.poses)
+        if pose_source is None:
+            write_poses(out / "poses.txt", seq.poses)
         mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
     n = len(seq)
     end = n if stop_after is None else min(n, stop_after)
     from tqdm import tqdm
 
     t0 = time.perf_counter()
-    t_compute = 0.0
+    t_compute = t_track = 0.0
     schedule = CorrectionSchedule(seq.poses, cfg.ablation) if cfg.ablation.perturbs else None
     corrected = 0
+    online = pose_source(seq) if pose_source is not None else None
+    unplaced: list[int] = []
+    last_T = np.eye(4)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
-    # the ablation schedule reads frames again for its corrections: no prefetching thread beside it
-    stream = prefetched(frames, range(start, end)) if schedule is None else ((i, frames(i)) for i in range(start, end))
+    # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
+    stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
+              else ((i, frames(i)) for i in range(start, end)))
     try:
         for i, frame in stream:
+            revisions = []
             if schedule is not None:  # the ablation schedule: drifted pose now, the true one later
                 frame.T_world_cam = schedule.integration_pose(i)
+            if online is not None:
+                tc = time.perf_counter()
+                T, revisions = online(i, frame)
+                t_track += time.perf_counter() - tc
+                if T is None:  # not placed: an empty observation where the last placed frame was
+                    unplaced.append(i)
+                    frame = dataclasses.replace(frame, depth=np.zeros_like(frame.depth), T_world_cam=last_T)
+                else:
+                    frame.T_world_cam = last_T = np.asarray(T, np.float64)
             tc = time.perf_counter()
             mapper.integrate(frame)
             if schedule is not None:
                 corrected += schedule.apply(mapper, frames, i)
+            for fid, T in revisions:
+                mapper.revise(fid, T)
             t_compute += time.perf_counter() - tc
             bar.update(1)
             done = i + 1
@@ -361,7 +419,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     steps = max(end - start, 1)
     summary = {"frames": n, "integrated": end - start, "ms_per_frame": 1e3 * wall / steps,
                "update_ms_per_frame": 1e3 * t_compute / steps, "out": str(out),
-               "empty_frames": list(mapper.empty_frames)}
+               "empty_frames": [f for f in mapper.empty_frames if f not in set(unplaced)]}
+    if online is not None:
+        summary.update(unplaced_frames=unplaced, track_ms_per_frame=1e3 * t_track / steps)
     if frames.segmenter is not None:
         summary["segmenter_ms_per_frame"] = 1e3 * frames.segmenter_seconds / steps
     if schedule is not None:

@@ -1,0 +1,159 @@
+"""Point clouds of ERP depth frames and their rigid registration (small_gicp's GICP or Open3D's ICP).
+
+Both backends take the same prepared clouds and answer the same question: the transform
+``T_target_source`` (4, 4) float64 that maps source points (metres, source camera frame) into the
+target's frame, with the fraction of source points that found a correspondence (``fitness``).
+
+* ``small_gicp`` (default): ``small_gicp.preprocess_points`` (voxel downsampling, covariances, KD-tree)
+  and ``small_gicp.align(..., registration_type="GICP")``, single-threaded so that the same frames
+  give the same bytes. Measured the faster of the two here (docs/slam.md, "Backend").
+* ``open3d``: ``voxel_down_sample``, ``estimate_normals`` and ``registration_icp`` with point-to-plane
+  estimation.
+
+Pose-graph edge information matrices come from Open3D's
+``get_information_matrix_from_point_clouds`` for both backends. Maths only: no files, no printing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+BACKENDS = ("small_gicp", "open3d")
+
+
+def erp_points(depth: np.ndarray, rays: np.ndarray, stride: int, min_range: float, max_range: float) -> np.ndarray:
+    """Camera-frame points of an ERP depth map, every ``stride``-th pixel in each direction.
+
+    Parameters
+    ----------
+    depth : (H, W) float32, metres, radial, 0 = invalid
+    rays : (H, W, 3) float64, unit rays of the pixels (camera frame, OpenCV axes)
+    stride : int >= 1
+    min_range, max_range : metres; depths outside ``(min_range, max_range)`` are dropped
+
+    Returns
+    -------
+    points_cam : (n, 3) float64, metres
+    """
+    d = np.asarray(depth)[::stride, ::stride]
+    r = rays[::stride, ::stride]
+    m = np.isfinite(d) & (d > min_range) & (d < max_range)
+    return r[m] * d[m].astype(np.float64)[:, None]
+
+
+@dataclass
+class Cloud:
+    """A frame's cloud prepared for registration (downsampled, with the backend's structures).
+
+    points : (n, 3) float64, metres, camera frame, after downsampling
+    """
+
+    points: np.ndarray
+    handle: object = field(repr=False, default=None)  # backend data (small_gicp cloud + tree, or Open3D cloud)
+    _o3d: object = field(repr=False, default=None)    # Open3D cloud for information matrices (lazy)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def o3d(self):
+        """The cloud as an ``open3d.geometry.PointCloud`` (built once)."""
+        if self._o3d is None:
+            import open3d as o3d
+
+            self._o3d = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+        return self._o3d
+
+
+@dataclass
+class RegResult:
+    """One registration: ``T_target_source`` (4, 4) float64, fitness in [0, 1] (inlier fraction of the
+    source), converged."""
+
+    T_target_source: np.ndarray
+    fitness: float
+    converged: bool
+
+
+class Registration:
+    """A registration backend with its parameters.
+
+    Parameters
+    ----------
+    backend : ``small_gicp`` | ``open3d``
+    voxel_m : downsampling voxel edge, metres
+    max_iterations : iteration cap of one alignment
+    threads : worker threads (1 = deterministic bytes)
+    """
+
+    def __init__(self, backend: str = "small_gicp", voxel_m: float = 0.1, max_iterations: int = 30, threads: int = 1):
+        if backend not in BACKENDS:
+            raise ValueError(f"registration backend must be one of {BACKENDS}, got {backend!r}")
+        self.backend, self.voxel_m, self.max_iterations, self.threads = backend, float(voxel_m), int(max_iterations), int(threads)
+
+    def prepare(self, points_cam: np.ndarray) -> Cloud:
+        """Downsample ``points_cam`` (n, 3) float64 metres and build what :meth:`align` needs."""
+        pts = np.ascontiguousarray(points_cam, np.float64)
+        if self.backend == "small_gicp":
+            import small_gicp
+
+            if len(pts) == 0:
+                return Cloud(np.zeros((0, 3)))
+            cloud, tree = small_gicp.preprocess_points(pts, downsampling_resolution=self.voxel_m, num_neighbors=10,
+                                                       num_threads=self.threads)
+            return Cloud(np.asarray(cloud.points())[:, :3].copy(), (cloud, tree))
+        import open3d as o3d
+
+        with open3d_threads(self.threads):
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(self.voxel_m)
+            if len(pc.points):
+                pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * self.voxel_m, max_nn=20))
+        return Cloud(np.asarray(pc.points).copy(), pc, pc)
+
+    def align(self, target: Cloud, source: Cloud, init_T_target_source: np.ndarray, max_corr_m: float) -> RegResult:
+        """Register ``source`` onto ``target`` from the initial guess (4, 4); ``max_corr_m`` metres."""
+        init = np.asarray(init_T_target_source, np.float64)
+        if len(target) < 3 or len(source) < 3:
+            return RegResult(init.copy(), 0.0, False)
+        if self.backend == "small_gicp":
+            import small_gicp
+
+            (tc, tt), (sc, _) = target.handle, source.handle
+            r = small_gicp.align(tc, sc, tt, init, registration_type="GICP", max_correspondence_distance=max_corr_m,
+                                 num_threads=self.threads, max_iterations=self.max_iterations)
+            return RegResult(np.asarray(r.T_target_source, np.float64).copy(), r.num_inliers / max(len(source), 1),
+                             bool(r.converged))
+        import open3d as o3d
+
+        reg = o3d.pipelines.registration
+        with open3d_threads(self.threads):
+            r = reg.registration_icp(source.handle, target.handle, max_corr_m, init,
+                                     reg.TransformationEstimationPointToPlane(),
+                                     reg.ICPConvergenceCriteria(max_iteration=self.max_iterations))
+        return RegResult(np.asarray(r.transformation, np.float64).copy(), float(r.fitness), True)
+
+    @staticmethod
+    def information(target: Cloud, source: Cloud, T_target_source: np.ndarray, max_corr_m: float) -> np.ndarray:
+        """(6, 6) float64 information matrix of an edge (Open3D's, from the correspondences within ``max_corr_m``)."""
+        import open3d as o3d
+
+        with open3d_threads(1):
+            return np.asarray(o3d.pipelines.registration.get_information_matrix_from_point_clouds(
+                source.o3d(), target.o3d(), max_corr_m, np.asarray(T_target_source, np.float64)))
+
+
+@contextlib.contextmanager
+def open3d_threads(n: int):
+    """Run Open3D's parallel loops on ``n`` threads for the block (1: sums in a fixed order, the same bytes
+    every run); its console output is silenced to errors."""
+    import open3d as o3d
+
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(n)
+    try:
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            yield
+    finally:
+        o3d.utility.set_max_threads(before)

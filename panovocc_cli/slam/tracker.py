@@ -1,0 +1,332 @@
+"""Panoramic RGB-D tracking with keyframes, loop closure and pose-graph optimisation.
+
+:class:`Tracker` estimates ``T_world_cam`` of each ERP depth frame online (the world frame is the
+first placed frame's camera frame turned +Z up, :data:`LEVEL_FIRST`):
+
+1. **Tracking, frame to keyframe.** The frame's points (every ``stride``-th pixel, ranges within
+   ``(min_range_m, max_range_m)``) are downsampled to ``voxel_m`` and registered to the current
+   keyframe (:mod:`.registration`: small_gicp's GICP or Open3D's point-to-plane ICP), starting from
+   a constant-velocity prediction. A result whose inlier fraction is below ``min_fitness`` or that
+   jumps more than ``max_step_m`` / ``max_step_deg`` from the prediction is a tracking failure.
+2. **Relocalisation.** After a failure the frame is registered to the ``reloc_candidates``
+   keyframes nearest the predicted position, from the prediction and from four headings about the
+   keyframe's vertical axis; the best result with fitness >= ``reloc_fitness`` places it. Otherwise
+   the frame is **lost** (not placed); a frame with fewer than ``min_points`` downsampled points
+   (few valid depths) is lost without trying.
+3. **Keyframes.** A frame becomes a keyframe when it is ``kf_trans_m`` or ``kf_rot_deg`` from its
+   keyframe, when the fit drops below ``kf_fitness``, or after a relocalisation. Consecutive
+   keyframes are joined by an odometry edge (the registration, with Open3D's information matrix).
+4. **Loop closure.** A new keyframe is compared with older keyframes (at least ``loop_min_gap``
+   keyframes back) within ``loop_radius_m`` of it (place proximity, nearest first, at most
+   ``loop_candidates``); a candidate is verified by registration from the current estimate and
+   accepted at fitness >= ``loop_fitness`` (``loop_max_corr_m``). Accepted candidates become
+   uncertain edges.
+5. **Pose-graph optimisation** (Open3D's ``global_optimization``, Levenberg-Marquardt, line-process
+   pruning of wrong loop edges) runs after every accepted loop closure; keyframe poses move, and
+   every placed frame follows its keyframe (``T_world_frame = T_world_kf · T_kf_frame``).
+
+Every frame pose that an optimisation moves by more than ``revise_trans_m`` or ``revise_rot_deg``
+from the pose last handed out is returned in :attr:`TrackStep.revisions`: the caller sends it to
+its map (``Mapper.revise``). The poses handed out (:meth:`Tracker.committed`) are what the map was
+built with; they differ from the optimiser's by at most those thresholds. Maths only: no files, no
+printing (Open3D's console output is silenced).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry import erp
+from ..geometry.drift import so3_exp
+from .registration import BACKENDS, Cloud, Registration, erp_points, open3d_threads
+
+TRACKED, KEYFRAME, RELOCALISED, LOST = "tracked", "keyframe", "relocalised", "lost"
+
+LEVEL_FIRST = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+"""Default pose of the first placed frame: the world is its camera frame turned so that world +Z is the
+camera's up (−y) and world +Y its forward (+z), i.e. a level first panorama gives a +Z-up world (the
+toolkit's convention) with the origin at the first camera centre."""
+
+
+@dataclass
+class SlamParams:
+    """Parameters of the SLAM front end (units in the names; defaults tuned on the synthetic scenes of
+    seeds 0 and 1 at 512 x 256, docs/slam.md)."""
+
+    backend: str = "small_gicp"
+    voxel_m: float = 0.1
+    stride: int = 0                 # pixel stride of the point cloud; 0 = max(1, W // 256)
+    min_range_m: float = 0.2
+    max_range_m: float = 10.0
+    max_corr_m: float = 0.5         # tracking correspondence distance
+    max_iterations: int = 30
+    min_points: int = 300           # downsampled points below which a frame cannot be placed
+    min_fitness: float = 0.5        # inlier fraction below which tracking has failed
+    max_step_m: float = 0.6         # largest correction of the prediction accepted while tracking
+    max_step_deg: float = 30.0
+    kf_trans_m: float = 0.4
+    kf_rot_deg: float = 20.0
+    kf_fitness: float = 0.85
+    loop_radius_m: float = 1.5
+    loop_min_gap: int = 6           # keyframes between a loop's two ends
+    loop_candidates: int = 3
+    loop_fitness: float = 0.6
+    loop_max_corr_m: float = 0.2
+    reloc_candidates: int = 5
+    reloc_fitness: float = 0.6
+    revise_trans_m: float = 0.001
+    revise_rot_deg: float = 0.05
+    threads: int = 1                # registration threads (1: the same frames give the same bytes)
+
+    def check(self) -> "SlamParams":
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        return self
+
+
+@dataclass
+class TrackStep:
+    """What :meth:`Tracker.track` found for one frame.
+
+    frame_id : int; status : ``tracked`` | ``keyframe`` | ``relocalised`` | ``lost``
+    T_world_cam : (4, 4) float64 or None (lost: not placed)
+    fitness : float, inlier fraction of the accepted registration (0 when lost)
+    revisions : list of (frame_id, (4, 4) float64): earlier frames an optimisation moved
+    loops : list of (keyframe frame id, keyframe frame id) loop edges added at this frame
+    reason : str, why a lost frame was lost ("" otherwise)
+    """
+
+    frame_id: int
+    status: str
+    T_world_cam: np.ndarray | None
+    fitness: float = 0.0
+    revisions: list = field(default_factory=list)
+    loops: list = field(default_factory=list)
+    reason: str = ""
+
+    @property
+    def placed(self) -> bool:
+        return self.T_world_cam is not None
+
+
+@dataclass
+class _Keyframe:
+    frame_id: int
+    cloud: Cloud
+    T_world: np.ndarray
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(c)))
+
+
+def _differs(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) -> bool:
+    D = np.linalg.inv(A) @ B
+    return bool(np.linalg.norm(D[:3, 3]) > trans_m or _angle_deg(D[:3, :3]) > rot_deg)
+
+
+class Tracker:
+    """Online pose estimation for one ERP RGB-D stream (module docstring).
+
+    Parameters
+    ----------
+    width, height : ERP size in pixels (W = 2 H)
+    params : SlamParams
+    T_world_first : (4, 4) float64, pose given to the first placed frame (default :data:`LEVEL_FIRST`)
+    """
+
+    def __init__(self, width: int, height: int, params: SlamParams | None = None, T_world_first=None):
+        self.params = (params or SlamParams()).check()
+        p = self.params
+        self.stride = p.stride if p.stride > 0 else max(1, width // 256)
+        self._rays = erp.ray_directions(width, height)
+        self._shape = (height, width)
+        self.reg = Registration(p.backend, p.voxel_m, p.max_iterations, p.threads)
+        self.T_world_first = LEVEL_FIRST.copy() if T_world_first is None else np.asarray(T_world_first, np.float64)
+        self.keyframes: list[_Keyframe] = []
+        self._edges: list[tuple[int, int, np.ndarray, np.ndarray, bool]] = []  # (source kf, target kf, T_t_s, info, uncertain)
+        self._placed: dict[int, tuple[int, np.ndarray]] = {}   # frame id -> (keyframe index, T_kf_frame)
+        self._committed: dict[int, np.ndarray] = {}
+        self.lost: list[int] = []
+        self.relocalised: list[int] = []
+        self.loops: list[tuple[int, int]] = []
+        self.optimisations = 0
+        self._ref = 0
+        self._last: tuple[int, np.ndarray] | None = None
+        self._velocity = np.eye(4)
+
+    # -- state -----------------------------------------------------------------------------------
+    def pose(self, frame_id: int) -> np.ndarray:
+        """Current estimate (4, 4) of a placed frame: its keyframe's optimised pose times its offset."""
+        k, T_kf = self._placed[int(frame_id)]
+        return self.keyframes[k].T_world @ T_kf
+
+    def committed(self) -> dict[int, np.ndarray]:
+        """Frame id -> (4, 4) float64 pose last handed out (to the map), for every placed frame."""
+        return {k: v.copy() for k, v in sorted(self._committed.items())}
+
+    # -- one frame ---------------------------------------------------------------------------------
+    def track(self, frame_id: int, depth: np.ndarray) -> TrackStep:
+        """Place frame ``frame_id`` from its depth (H, W) float32 metres, radial, 0 = invalid."""
+        p = self.params
+        fid = int(frame_id)
+        depth = np.asarray(depth)
+        if depth.shape != self._shape:
+            raise ValueError(f"frame {fid}: depth shape {depth.shape}, expected {self._shape}")
+        cloud = self.reg.prepare(erp_points(depth, self._rays, self.stride, p.min_range_m, p.max_range_m))
+        if len(cloud) < p.min_points:
+            return self._lose(fid, f"few valid depths ({len(cloud)} points after downsampling, need {p.min_points})")
+        if not self.keyframes:
+            self.keyframes.append(_Keyframe(fid, cloud, self.T_world_first.copy()))
+            return self._place(fid, 0, np.eye(4), KEYFRAME, 1.0, cloud)
+        pred = self._last[1] @ self._velocity if self._last is not None else self.keyframes[self._ref].T_world
+        kf = self.keyframes[self._ref]
+        init = np.linalg.inv(kf.T_world) @ pred
+        r = self.reg.align(kf.cloud, cloud, init, p.max_corr_m)
+        status, k = TRACKED, self._ref
+        if not self._accept(r, init, p.min_fitness):
+            found = self._relocalise(cloud, pred)
+            if found is None:
+                return self._lose(fid, f"tracking failed (fitness {r.fitness:.2f}) and no keyframe relocalised it")
+            k, r = found
+            status = RELOCALISED
+        return self._place(fid, k, r.T_target_source, status, r.fitness, cloud)
+
+    def _accept(self, r, init: np.ndarray, min_fitness: float) -> bool:
+        p = self.params
+        if r.fitness < min_fitness:
+            return False
+        if not np.all(np.isfinite(r.T_target_source)):
+            return False
+        return not _differs(init, r.T_target_source, p.max_step_m, p.max_step_deg)
+
+    def _lose(self, fid: int, reason: str) -> TrackStep:
+        self.lost.append(fid)
+        self._velocity = np.eye(4)
+        return TrackStep(fid, LOST, None, reason=reason)
+
+    def _relocalise(self, cloud: Cloud, pred: np.ndarray):
+        """(keyframe index, RegResult) of the best registration to a nearby keyframe, or None."""
+        p = self.params
+        pos = np.array([k.T_world[:3, 3] for k in self.keyframes])
+        order = np.argsort(np.linalg.norm(pos - pred[:3, 3], axis=1), kind="stable")[: p.reloc_candidates]
+        best = None
+        for k in order:
+            kf = self.keyframes[int(k)]
+            inits = [np.linalg.inv(kf.T_world) @ pred]
+            for yaw in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi):  # headings about the camera's vertical (-y) axis
+                T = np.eye(4)
+                T[:3, :3] = so3_exp([0.0, yaw, 0.0])
+                inits.append(T)
+            for init in inits:
+                r = self.reg.align(kf.cloud, cloud, init, p.max_corr_m)
+                if r.fitness >= p.reloc_fitness and np.all(np.isfinite(r.T_target_source)) and (
+                        best is None or r.fitness > best[1].fitness):
+                    best = (int(k), r)
+        return best
+
+    def _place(self, fid: int, k: int, T_kf_frame: np.ndarray, status: str, fitness: float, cloud: Cloud) -> TrackStep:
+        p = self.params
+        kf = self.keyframes[k]
+        T_world = kf.T_world @ T_kf_frame
+        loops: list = []
+        revisions: list = []
+        if status == RELOCALISED:
+            self.relocalised.append(fid)
+        make_kf = status == RELOCALISED or (
+            fid != kf.frame_id and (np.linalg.norm(T_kf_frame[:3, 3]) > p.kf_trans_m
+                                    or _angle_deg(T_kf_frame[:3, :3]) > p.kf_rot_deg or fitness < p.kf_fitness))
+        if make_kf:
+            new = len(self.keyframes)
+            self.keyframes.append(_Keyframe(fid, cloud, T_world.copy()))
+            info = self.reg.information(kf.cloud, cloud, T_kf_frame, p.max_corr_m)
+            self._edges.append((new, k, T_kf_frame.copy(), info, False))
+            self._placed[fid] = (new, np.eye(4))
+            self._ref = new
+            loops = self._close_loops(new)
+            if loops:
+                self._optimise()
+                revisions = self._revisions(exclude=fid)
+            T_world = self.pose(fid)
+            if status == TRACKED:
+                status = KEYFRAME
+        else:
+            self._placed[fid] = (k, T_kf_frame.copy())
+            self._ref = k
+        if self._last is not None and self._last[0] == fid - 1:
+            self._velocity = np.linalg.inv(self._last[1]) @ T_world
+        else:
+            self._velocity = np.eye(4)
+        self._last = (fid, T_world.copy())
+        self._committed[fid] = T_world.copy()
+        return TrackStep(fid, status, T_world.copy(), float(fitness), revisions, loops)
+
+    # -- loops and the pose graph -----------------------------------------------------------------
+    def _close_loops(self, new: int) -> list[tuple[int, int]]:
+        p = self.params
+        cur = self.keyframes[new]
+        old = self.keyframes[: max(0, new - p.loop_min_gap)]
+        if not old:
+            return []
+        pos = np.array([k.T_world[:3, 3] for k in old])
+        dist = np.linalg.norm(pos - cur.T_world[:3, 3], axis=1)
+        order = [int(i) for i in np.argsort(dist, kind="stable") if dist[i] <= p.loop_radius_m][: p.loop_candidates]
+        found = []
+        for j in order:
+            kf = self.keyframes[j]
+            init = np.linalg.inv(kf.T_world) @ cur.T_world
+            r = self.reg.align(kf.cloud, cur.cloud, init, p.max_corr_m)
+            if r.fitness < p.min_fitness or not np.all(np.isfinite(r.T_target_source)):
+                continue
+            r = self.reg.align(kf.cloud, cur.cloud, r.T_target_source, p.loop_max_corr_m)
+            if r.fitness < p.loop_fitness or _differs(init, r.T_target_source, p.loop_radius_m, 45.0):
+                continue
+            info = self.reg.information(kf.cloud, cur.cloud, r.T_target_source, p.loop_max_corr_m)
+            self._edges.append((new, j, r.T_target_source.copy(), info, True))
+            found.append((cur.frame_id, kf.frame_id))
+        self.loops.extend(found)
+        return found
+
+    def _optimise(self) -> None:
+        """Open3D global optimisation of the keyframe pose graph; keyframe poses updated in place."""
+        import open3d as o3d
+
+        reg = o3d.pipelines.registration
+        g = reg.PoseGraph()
+        for kf in self.keyframes:
+            g.nodes.append(reg.PoseGraphNode(kf.T_world))
+        for s, t, T, info, uncertain in self._edges:
+            g.edges.append(reg.PoseGraphEdge(s, t, T, info, uncertain))
+        opt = reg.GlobalOptimizationOption(max_correspondence_distance=self.params.loop_max_corr_m,
+                                           edge_prune_threshold=0.25, preference_loop_closure=1.0, reference_node=0)
+        with open3d_threads(1):  # the same graph gives the same poses, bit for bit
+            reg.global_optimization(g, reg.GlobalOptimizationLevenbergMarquardt(),
+                                    reg.GlobalOptimizationConvergenceCriteria(), opt)
+        for kf, node in zip(self.keyframes, g.nodes):
+            kf.T_world = np.asarray(node.pose, np.float64).copy()
+        self.optimisations += 1
+
+    def _revisions(self, exclude: int) -> list[tuple[int, np.ndarray]]:
+        p = self.params
+        out = []
+        for fid in sorted(self._placed):
+            if fid == exclude:
+                continue
+            T = self.pose(fid)
+            if _differs(self._committed[fid], T, p.revise_trans_m, p.revise_rot_deg):
+                self._committed[fid] = T.copy()
+                out.append((fid, T))
+        if self._last is not None and self._last[0] in self._placed:
+            self._last = (self._last[0], self.pose(self._last[0]))
+        return out
+
+    def summary(self) -> dict:
+        """Counts of the run so far: keyframes, loop closures, optimisations, lost and relocalised frames."""
+        return {"keyframes": len(self.keyframes), "keyframe_ids": [k.frame_id for k in self.keyframes],
+                "loop_closures": [list(x) for x in self.loops], "optimisations": self.optimisations,
+                "lost_frames": list(self.lost), "relocalised_frames": list(self.relocalised),
+                "params": dataclasses.asdict(self.params), "stride": self.stride}

@@ -1,0 +1,76 @@
+"""``panovocc map SEQ OUT --poses slam``: the estimated poses flow into the streaming map, revisions included,
+and the final memory equals, bit for bit, one built directly from the final poses."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from panovocc_cli.evaluation.trajectory import evaluate_trajectory
+from panovocc_cli.io.poses import read_poses, read_trajectory, write_tum
+from panovocc_cli.io.sequence import Sequence
+
+
+def _cli(capsys, *argv):
+    from panovocc_cli.cli import main
+
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return int(e.value.code or 0), out.out, out.err
+
+
+def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_path, capsys):
+    from panovocc_cli.mapping import Mapper
+    from panovocc_cli.mapping.pipeline import load_config, load_memory, sequence_frames
+
+    truth = read_poses(loop_seq / "poses.txt")
+    seq_dir = tmp_path / "seq"
+    shutil.copytree(loop_seq, seq_dir)
+    (seq_dir / "poses.txt").unlink()  # --poses slam never reads them
+    out = tmp_path / "map"
+    code, stdout, err = _cli(capsys, "map", seq_dir, out, "--poses", "slam", "--quiet")
+    assert code == 0, err
+    assert "slam: 48 of 48 frames placed" in stdout
+    info = json.loads((out / "slam.json").read_text())
+    assert info["optimisations"] >= 1 and info["revisions"] > 0 and info["unplaced_frames"] == []
+    final = read_poses(out / "poses.txt")
+    t, tum, form = read_trajectory(out / "trajectory.tum")
+    assert form == "tum" and t.tolist() == list(range(48)) and np.allclose(tum, final, atol=1e-9)
+    # the estimate is the truth up to the choice of world frame (level first camera at the origin)
+    assert evaluate_trajectory(final, truth, "se3").ate["rmse"] < 0.01
+
+    # a map built from scratch with the final poses: the same memory, bit for bit
+    cfg = load_config(out)
+    seq = Sequence(seq_dir, poses=final)
+    frames = sequence_frames(cfg, seq)
+    ref = Mapper(cfg.mapper_config())
+    for i in range(len(seq)):
+        ref.integrate(frames(i))
+    mem, done, poses = load_memory(out)
+    assert done == 48 and np.array_equal(poses, final)
+    k1, c1 = mem.nonzero()
+    k2, c2 = ref.memory.nonzero()
+    assert np.array_equal(k1, k2)
+    assert set(c1) == set(c2) and all(np.array_equal(c1[n], c2[n]) for n in c1)
+
+
+def test_poses_file_matched_and_aligned_to_a_reference(loop_seq, tmp_path):
+    from panovocc_cli.mapping.config import MapConfig
+    from panovocc_cli.mapping.pipeline import run_poses
+    from panovocc_cli.geometry.drift import so3_exp
+
+    truth = read_poses(loop_seq / "poses.txt")
+    A = np.eye(4)
+    A[:3, :3], A[:3, 3] = so3_exp([0.1, -0.3, 1.2]), [3.0, -1.0, 0.5]
+    moved = A @ truth
+    order = np.random.default_rng(0).permutation(48)  # TUM lines in any order: matched by timestamp
+    write_tum(tmp_path / "est.tum", moved[order], timestamps=order.astype(float))
+    cfg = MapConfig(seq=str(loop_seq), out=str(tmp_path / "m"), poses=str(tmp_path / "est.tum"))
+    assert np.allclose(run_poses(cfg), moved, atol=1e-9)
+    aligned = run_poses(MapConfig(seq=str(loop_seq), out=str(tmp_path / "m"), poses=str(tmp_path / "est.tum"),
+                                  poses_align="se3"))
+    assert np.allclose(aligned, truth, atol=1e-6)
+    assert run_poses(MapConfig(seq=str(loop_seq), out=str(tmp_path / "m"))) is None  # SEQ/poses.txt as before
