@@ -92,7 +92,8 @@ def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | 
     timestamps are matched to the frames' (``stamps``, default the frame indices 0 .. n-1, as
     ``write_tum`` writes them) by nearest time within ``max_diff`` (default
     :data:`panovocc_cli.config.MATCH_MAX_DIFF`); extra poses are ignored, and a frame
-    without a pose is an error listing the first such frames.
+    without a pose is an error listing the first such frames. A TUM file whose stamps match no frame
+    index at all (clock seconds) and that holds exactly one pose per frame is taken in time order.
 
     Returns
     -------
@@ -106,6 +107,8 @@ def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | 
         return T
     frame_t = np.arange(n_frames, dtype=np.float64) if stamps is None else np.asarray(stamps, np.float64)
     ia, ib = match_timestamps(frame_t, t, MATCH_MAX_DIFF if max_diff is None else max_diff)
+    if len(ia) == 0 and stamps is None and len(T) == n_frames:  # clock stamps, frames without: time order
+        return T[np.argsort(t, kind="stable")]
     if len(ia) < n_frames:
         missing = sorted(set(range(n_frames)) - set(ia.tolist()))
         shown = ", ".join(map(str, missing[:8])) + (", ..." if len(missing) > 8 else "")

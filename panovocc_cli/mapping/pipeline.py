@@ -344,6 +344,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if (cfg.poses == POSES_SLAM) != (pose_source is not None):
             raise PanovoccError("--poses slam needs a pose source (panovocc map, or slam.run.run_map_slam)"
                                 if pose_source is None else "a pose source is only used with --poses slam")
+        if cfg.poses == POSES_SLAM and (cfg.poses_align != "none" or cfg.poses_reference is not None):
+            raise PanovoccError("--poses-align / --poses-reference align a pose file; with --poses slam align "
+                                "afterwards (traj eval, or map --poses OUT/poses.txt --poses-align se3)")
         seq = _open_sequence(cfg)
         cfg = resolve(cfg, seq.meta.width)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))

@@ -598,6 +598,11 @@ CASES = [
                     "--plot", write(t / "p.png", "x")], "overwrite"),
     C("traj", "perturb-negative", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", t / "o.txt",
                                                 "--drift", "-1"], "--drift"),
+    C("traj", "map-slam-with-align", lambda b, t: ["map", b / "seq", t / "out", "--poses", "slam", "--poses-align",
+                                                   "se3", *Q], "align"),
+    C("traj", "map-poses-tum-unmatched",
+      lambda b, t: ["map", b / "seq", t / "out", "--poses",
+                    write(t / "p.tum", "".join(f"{i + 0.5} 0 0 0 0 0 0 1\n" for i in range(3))), *Q], "no pose within"),
     C("traj", "perturb-onto-input", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", b / "seq" / "poses.txt"],
       "input"),
 ]
