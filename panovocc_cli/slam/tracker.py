@@ -61,7 +61,8 @@ class SlamParams:
     stride: int = 0                 # pixel stride of the point cloud; 0 = max(1, W // 256)
     min_range_m: float = 0.2
     max_range_m: float = 10.0
-    max_corr_m: float = 0.5         # tracking correspondence distance
+    max_corr_m: float = 0.5         # tracking correspondence distance (coarse stage)
+    refine_corr_m: float = 0.0      # a refinement stage with this correspondence distance (0 = none: measured no better)
     max_iterations: int = 30
     min_points: int = 300           # downsampled points below which a frame cannot be placed
     min_fitness: float = 0.5        # inlier fraction below which tracking has failed
@@ -70,6 +71,8 @@ class SlamParams:
     kf_trans_m: float = 0.4
     kf_rot_deg: float = 20.0
     kf_fitness: float = 0.85
+    check_m: float = 0.01           # frame-to-keyframe vs frame-to-previous-frame disagreement that promotes
+    check_deg: float = 0.5          # the previous frame to a keyframe (0 = no check)
     loop_radius_m: float = 1.5
     loop_min_gap: int = 6           # keyframes between a loop's two ends
     loop_candidates: int = 3
@@ -158,6 +161,7 @@ class Tracker:
         self._ref = 0
         self._last: tuple[int, np.ndarray] | None = None
         self._velocity = np.eye(4)
+        self._prev: tuple[int, Cloud] | None = None  # the previous frame, if placed (a keyframe to promote)
 
     # -- state -----------------------------------------------------------------------------------
     def pose(self, frame_id: int) -> np.ndarray:
@@ -186,8 +190,20 @@ class Tracker:
         pred = self._last[1] @ self._velocity if self._last is not None else self.keyframes[self._ref].T_world
         kf = self.keyframes[self._ref]
         init = np.linalg.inv(kf.T_world) @ pred
-        r = self.reg.align(kf.cloud, cloud, init, p.max_corr_m)
+        r = self._register(kf.cloud, cloud, init)
         status, k = TRACKED, self._ref
+        prev = self._prev
+        if p.check_m > 0 and prev is not None and prev[0] == fid - 1 and prev[0] != kf.frame_id \
+                and self._placed[prev[0]][0] == self._ref:
+            # consistency check against the previous frame (short baseline): where the view changed a lot
+            # since the keyframe (a doorway, a corner) the two disagree; the previous frame then becomes a
+            # keyframe and this frame keeps its registration to it
+            T_prev = self.pose(prev[0])
+            r2 = self._register(prev[1], cloud, np.linalg.inv(T_prev) @ pred)
+            if r2.fitness >= p.min_fitness and np.all(np.isfinite(r2.T_target_source)) and _differs(
+                    kf.T_world @ r.T_target_source, T_prev @ r2.T_target_source, p.check_m, p.check_deg):
+                k = self._promote_previous()
+                kf, r, init = self.keyframes[k], r2, np.linalg.inv(T_prev) @ pred
         if not self._accept(r, init, p.min_fitness):
             found = self._relocalise(cloud, pred)
             if found is None:
@@ -195,6 +211,30 @@ class Tracker:
             k, r = found
             status = RELOCALISED
         return self._place(fid, k, r.T_target_source, status, r.fitness, cloud)
+
+    def _promote_previous(self) -> int:
+        """Make the previous frame a keyframe (odometry edge from its keyframe); returns its index."""
+        p = self.params
+        fid, cloud = self._prev
+        k, T_kf = self._placed[fid]
+        new = len(self.keyframes)
+        self.keyframes.append(_Keyframe(fid, cloud, self.keyframes[k].T_world @ T_kf))
+        info = self.reg.information(self.keyframes[k].cloud, cloud, T_kf, p.max_corr_m)
+        self._edges.append((new, k, T_kf.copy(), info, False))
+        self._placed[fid] = (new, np.eye(4))
+        self._ref = new
+        return new
+
+    def _register(self, target: Cloud, source: Cloud, init: np.ndarray):
+        """Coarse registration (``max_corr_m``), then a refinement with ``refine_corr_m`` correspondences
+        (fewer wrong matches where two rooms meet); fitness is the coarse stage's."""
+        p = self.params
+        r = self.reg.align(target, source, init, p.max_corr_m)
+        if p.refine_corr_m > 0 and np.all(np.isfinite(r.T_target_source)):
+            f = self.reg.align(target, source, r.T_target_source, p.refine_corr_m)
+            if np.all(np.isfinite(f.T_target_source)) and f.fitness > 0:
+                r = dataclasses.replace(f, fitness=r.fitness)
+        return r
 
     def _accept(self, r, init: np.ndarray, min_fitness: float) -> bool:
         p = self.params
@@ -207,6 +247,7 @@ class Tracker:
     def _lose(self, fid: int, reason: str) -> TrackStep:
         self.lost.append(fid)
         self._velocity = np.eye(4)
+        self._prev = None
         return TrackStep(fid, LOST, None, reason=reason)
 
     def _relocalise(self, cloud: Cloud, pred: np.ndarray):
@@ -223,7 +264,7 @@ class Tracker:
                 T[:3, :3] = so3_exp([0.0, yaw, 0.0])
                 inits.append(T)
             for init in inits:
-                r = self.reg.align(kf.cloud, cloud, init, p.max_corr_m)
+                r = self._register(kf.cloud, cloud, init)
                 if r.fitness >= p.reloc_fitness and np.all(np.isfinite(r.T_target_source)) and (
                         best is None or r.fitness > best[1].fitness):
                     best = (int(k), r)
@@ -262,6 +303,7 @@ class Tracker:
         else:
             self._velocity = np.eye(4)
         self._last = (fid, T_world.copy())
+        self._prev = (fid, cloud)
         self._committed[fid] = T_world.copy()
         return TrackStep(fid, status, T_world.copy(), float(fitness), revisions, loops)
 
