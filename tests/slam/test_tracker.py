@@ -78,14 +78,13 @@ def test_hard_frames_are_lost_or_relocalised_never_a_crash(loop_seq):
     sparse[~keep] = 0  # few valid depths
     few = tr.track(7, sparse)
     assert empty.status == LOST and few.status == LOST and "few valid depths" in few.reason
-    # fast motion: 8 frames skipped (1.3 m, 135 degrees), then back to normal frames
+    # fast motion: frames 8..15 skipped, 1.2 m and 165 degrees from the last placed frame (5): beyond the
+    # tracking basin, so the frame is relocalised against the keyframes, then tracking resumes
     jump = tr.track(16, seq.depth(16))
     nxt = tr.track(17, seq.depth(17))
-    assert jump.status in ("relocalised", "tracked", "keyframe", LOST)
-    assert nxt.placed
+    assert jump.status == "relocalised" and tr.relocalised == [16] and nxt.placed
     for s in (jump, nxt):
-        if s.placed:
-            assert np.linalg.norm(s.T_world_cam[:3, 3] - seq.poses[s.frame_id][:3, 3]) < 0.05
+        assert np.linalg.norm(s.T_world_cam[:3, 3] - seq.poses[s.frame_id][:3, 3]) < 0.02
     assert tr.lost[:2] == [6, 7]
     with pytest.raises(ValueError, match="shape"):
         tr.track(18, np.zeros((4, 8), np.float32))
