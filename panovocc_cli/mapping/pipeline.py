@@ -347,6 +347,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.poses == POSES_SLAM and (cfg.poses_align != "none" or cfg.poses_reference is not None):
             raise PanovoccError("--poses-align / --poses-reference align a pose file; with --poses slam align "
                                 "afterwards (traj eval, or map --poses OUT/poses.txt --poses-align se3)")
+        if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
+            raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
+                                "--poses slam")
         seq = _open_sequence(cfg)
         cfg = resolve(cfg, seq.meta.width)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
