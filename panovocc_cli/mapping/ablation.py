@@ -69,43 +69,18 @@ class AblationParams:
         return cls(**d)
 
 
-def _rotation(omega: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotations of axis-angle vectors ``omega`` (n, 3) radians (Rodrigues' formula)."""
-    theta = np.linalg.norm(omega, axis=-1)[:, None, None]
-    K = np.zeros((len(omega), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -omega[:, 2], omega[:, 1], -omega[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = omega[:, 2], -omega[:, 1], omega[:, 0]
-    small = theta < 1e-8
-    t = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta ** 2 / 6.0, np.sin(t) / t)
-    b = np.where(small, 0.5 - theta ** 2 / 24.0, (1.0 - np.cos(t)) / t ** 2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
 def drifted_poses(T_world_cam: np.ndarray, p: AblationParams) -> np.ndarray:
-    """``D`` (n, 4, 4) float64: the seeded drifting copy of the true poses ``T_world_cam`` (n, 4, 4).
+    """``D`` (n, 4, 4) float64: the seeded drifting copy of the true poses ``T_world_cam`` (n, 4, 4):
+    :func:`panovocc_cli.geometry.drift.drift_trajectory` (odometry-style, ``D_0 = T_0``,
+    ``D_i = D_{i-1} (T_{i-1}^-1 T_i) N_i``) with ``drift_rot_deg`` per frame, ``drift_trans_m`` per
+    square-root frame, no per-metre term, seed ``drift_seed``."""
+    from ..geometry.drift import drift_trajectory
 
-    Odometry-style: ``D_0 = T_0``, ``D_i = D_{i-1} (T_{i-1}^-1 T_i) N_i`` with ``N_i = [Exp(w_i) | t_i]`` in
-    camera ``i``'s frame, each axis of ``w_i`` normal with sigma ``drift_rot_deg`` (in radians), each axis of
-    ``t_i`` normal with sigma ``drift_trans_m`` metres; the (n - 1, 6) standard normals are drawn at once from
-    ``numpy.random.default_rng(drift_seed)`` (the model and draws of the slam helper's
-    ``geometry.drift.drift_trajectory`` with no per-metre term, so the two give the same poses).
-    """
     T = np.asarray(T_world_cam, np.float64)
-    out = T.copy()
-    n = len(T)
-    if n < 2 or not p.perturbs:
-        return out
-    z = np.random.default_rng(p.drift_seed).standard_normal((n - 1, 6))
-    rel = np.linalg.inv(T[:-1]) @ T[1:]
-    N = np.tile(np.eye(4), (n - 1, 1, 1))
-    N[:, :3, :3] = _rotation(z[:, :3] * np.deg2rad(p.drift_rot_deg))
-    N[:, :3, 3] = z[:, 3:] * p.drift_trans_m
-    for i in range(1, n):
-        out[i] = out[i - 1] @ (rel[i - 1] @ N[i - 1])
-        U, _, Vt = np.linalg.svd(out[i, :3, :3])  # stay rigid over long products
-        out[i, :3, :3] = U @ Vt
-    return out
+    if len(T) < 2 or not p.perturbs:
+        return T.copy()
+    return drift_trajectory(T, trans_m_per_sqrt_frame=p.drift_trans_m, rot_deg_per_frame=p.drift_rot_deg,
+                            seed=p.drift_seed)
 
 
 class CorrectionSchedule:

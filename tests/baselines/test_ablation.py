@@ -48,18 +48,6 @@ def test_drift_is_a_seeded_random_walk():
     assert np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-12)
 
 
-def test_drift_matches_geometry_drift():
-    """Where the slam helper's geometry.drift exists, the schedule's drift is its drift_trajectory, bit for bit."""
-    from panovocc_cli.mapping.ablation import drifted_poses
-
-    drift = pytest.importorskip("panovocc_cli.geometry.drift")
-    T = np.tile(np.eye(4), (50, 1, 1))
-    T[:, 1, 3] = np.linspace(0, 2, 50)
-    q = AblationParams(drift_rot_deg=0.7, drift_trans_m=0.02, drift_seed=5)
-    assert np.array_equal(drifted_poses(T, q), drift.drift_trajectory(T, trans_m_per_sqrt_frame=0.02,
-                                                                      rot_deg_per_frame=0.7, seed=5))
-
-
 def test_rpu_undoes_the_drift_exactly_and_without_it_stale_copies_stay(room, tmp_path, cli):
     """With RPU the corrected map is byte-identical to the map made with the true poses; without RPU the stale,
     drifted contributions stay: more occupied voxels, and the drifted copies are in the map."""
