@@ -24,6 +24,15 @@ from ._app import app
 # declaration) live in modules that import numba, which reads its settings when first imported.
 COMMAND_MODULES = ("data_cmds", "views_cmds", "map_cmds", "eval_cmds", "holo_cmds", "traj_cmds", "demo_cmds",
                    "baselines_cmds", "reproduce_cmds", "query_cmds")
+# the modules that register each command: running one imports only these (a command not listed here
+# loads every module, so a missing entry costs start-up time, never correctness)
+COMMAND_HOMES = {
+    "synth": ("data_cmds",), "render": ("data_cmds",), "gt": ("data_cmds",), "views": ("views_cmds",),
+    "map": ("map_cmds",), "revise": ("map_cmds",), "segeval": ("map_cmds",), "bench": ("map_cmds",),
+    "eval": ("eval_cmds",), "coverage": ("eval_cmds",), "show": ("eval_cmds",), "convert": ("eval_cmds", "holo_cmds"),
+    "traj": ("traj_cmds",), "demo": ("demo_cmds",), "baselines": ("baselines_cmds",),
+    "reproduce": ("reproduce_cmds",), "query": ("query_cmds",), "relabel": ("query_cmds",), "version": (),
+}
 
 
 def version() -> None:
@@ -38,15 +47,29 @@ def _printable(text: str) -> str:
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
-def load_commands() -> typer.Typer:
-    """Register every command on :data:`app` (once) and return it."""
+def load_commands(argv: list[str] | None = None) -> typer.Typer:
+    """Register the commands on :data:`app` and return it: those of ``argv[0]``'s modules when it names a
+    command of :data:`COMMAND_HOMES` (so ``panovocc map ...`` imports no other command's libraries),
+    else all of them, listed in :data:`COMMAND_MODULES` order. Each module registers once."""
     import importlib
 
-    if not getattr(app, "_panovocc_loaded", False):
-        for name in COMMAND_MODULES:
-            importlib.import_module(f"{__name__}.{name}")
+    first = argv[0] if argv else None
+    names = COMMAND_HOMES[first] if first in COMMAND_HOMES else COMMAND_MODULES
+    for name in names:
+        importlib.import_module(f"{__name__}.{name}")
+    if not getattr(app, "_panovocc_version", False):
         app.command("version")(version)
-        app._panovocc_loaded = True
+        app._panovocc_version = True
+    if names is COMMAND_MODULES:  # --help lists them in module order, whatever was loaded first
+
+        def order(info):
+            mod = getattr(info.callback, "__module__", "") if hasattr(info, "callback") else ""
+            mod = mod or getattr(getattr(info, "typer_instance", None), "_panovocc_module", "")
+            tail = mod.rsplit(".", 1)[-1]
+            return COMMAND_MODULES.index(tail) if tail in COMMAND_MODULES else len(COMMAND_MODULES)
+
+        app.registered_commands.sort(key=order)
+        app.registered_groups.sort(key=order)
     return app
 
 
@@ -58,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     from ..runtime import setup
 
     setup()
-    load_commands()
+    load_commands(sys.argv[1:] if argv is None else list(argv))
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
     except PanovoccError as e:

@@ -293,17 +293,20 @@ class Mapper:
         return self.export().grid
 
     # -- persistence -----------------------------------------------------------------------------
-    def save(self, folder: str | Path | None = None) -> Path:
+    def save(self, folder: str | Path | None = None, *, background: bool = False) -> Path:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 
         Writes the deltas not yet there, then ``memory.npz`` (the commit point), then ``config.json``
         (unless the folder's config already holds this mapper's parameters, e.g. a map run's) and
         ``poses.txt`` (the kept frames' poses in id order). Deltas kept in RAM move to ``folder``.
+        ``background=True``: ``memory.npz`` (of the memory as it is at the call) is written on the delta
+        writer thread while the caller goes on (the map command's checkpoints); it is on disk once
+        :meth:`close` returns, which re-raises a failed write.
         """
         folder = Path(folder) if folder is not None else self.folder
         if folder is None:
             raise PanovoccError("Mapper.save needs a folder (this mapper keeps its deltas in RAM)")
-        self._rpu.save(folder)
+        self._rpu.save(folder, background)
         cfg_path = folder / mapstore.CONFIG_NAME
         try:
             same = cfg_path.is_file() and MapperConfig.from_json(mapstore.read_map_config(folder)) == self.config

@@ -413,7 +413,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             bar.update(1)
             done = i + 1
             if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
-                mapper.save(out)  # waits for the pending delta write: a checkpoint covers deltas on disk only
+                mapper.save(out, background=True)  # after the pending delta writes: covers deltas on disk only
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -435,8 +435,11 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     if end < n:
         summary.update(stopped_at=end)
         return summary
-    mapper.save(out)
-    summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
+    mapper.save(out, background=True)  # memory.npz compresses while the export runs
+    try:
+        summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
+    finally:
+        mapper.close()  # waits for memory.npz (re-raises a failed write)
     return summary
 
 

@@ -169,19 +169,33 @@ class DeltaStore:
             self._writer = None
 
     # -- persistence -----------------------------------------------------------------------------
-    def commit(self, folder: str | Path, write_memory) -> None:
+    def commit(self, folder: str | Path, write_memory, background: bool = False) -> None:
         """Make ``folder`` hold every kept delta, with ``write_memory()`` (which writes ``memory.npz``,
         the commit point) called once all delta files are on disk. A store kept in RAM or in another
-        folder moves into ``folder`` (its RAM is freed; later changes go there)."""
+        folder moves into ``folder`` (its RAM is freed; later changes go there).
+
+        ``background``: ``write_memory`` and the renames after it run on the delta writer thread, after
+        the delta writes queued before them (so in the same order); :meth:`flush` or :meth:`close` waits
+        for them and re-raises their error."""
         folder = Path(folder)
         if self.folder is None or self.folder.resolve() != folder.resolve():
             self._move_to(folder)
         self.flush()
-        write_memory()
-        for fid, tmp in sorted(self._staged.items()):
-            tmp.replace(mapstore.delta_path(folder, fid))
-        for fid in sorted(self._doomed):
-            mapstore.delta_path(folder, fid).unlink(missing_ok=True)
+        staged, doomed = sorted(self._staged.items()), sorted(self._doomed)
+
+        def finish():
+            write_memory()
+            for fid, tmp in staged:
+                tmp.replace(mapstore.delta_path(folder, fid))
+            for fid in doomed:
+                mapstore.delta_path(folder, fid).unlink(missing_ok=True)
+
+        if background:
+            if self._writer is None:
+                self._writer = _BackgroundWriter()
+            self._writer.submit(finish)
+        else:
+            finish()
         self._staged.clear()
         self._doomed.clear()
         self._committed = dict(self.poses)
@@ -261,19 +275,21 @@ class ReversibleMemory:
         poses = np.stack([self.store.poses[i] for i in ids]) if ids else np.zeros((0, 4, 4))
         return np.asarray(ids, np.int64), poses
 
-    def save(self, folder: str | Path) -> None:
+    def save(self, folder: str | Path, background: bool = False) -> None:
         """Persist into ``folder``: every kept delta, then ``memory.npz`` (the commit point).
 
         ``memory.npz`` lists the kept frames' poses in id order; their ids are stored too unless they are
-        ``0..n-1`` (a map run's file keeps its historical bytes)."""
+        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the memory file is
+        written on the delta writer thread (:meth:`DeltaStore.commit`) from the memory as it is now."""
         ids, poses = self.poses()
         plain = np.array_equal(ids, np.arange(len(ids)))
+        arrays = self.memory.to_arrays()  # now: the memory may change while a background write runs
 
         def write():
-            mapstore.write_memory(folder, self.memory.to_arrays(), len(ids), poses, None if plain else ids)
+            mapstore.write_memory(folder, arrays, len(ids), poses, None if plain else ids)
 
         Path(folder).mkdir(parents=True, exist_ok=True)
-        self.store.commit(folder, write)
+        self.store.commit(folder, write, background)
 
     @classmethod
     def load(cls, folder: str | Path) -> "ReversibleMemory":

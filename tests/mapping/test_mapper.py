@@ -191,7 +191,7 @@ def test_staged_delta_rolled_forward_or_discarded(mapped, tmp_path):
     assert not staged.exists() and np.array_equal(back.pose(1), frames(1).T_world_cam)
     # committed (memory.npz written) but not renamed: rolled forward
     staged.write_bytes(new_bytes)
-    m._rpu.store.commit = lambda folder, write: write()  # the kill: memory written, nothing renamed
+    m._rpu.store.commit = lambda folder, write, background=False: write()  # the kill: memory written, nothing renamed
     m._rpu.save(tmp_path / "m")
     assert staged.exists()
     back = Mapper.load(tmp_path / "m")
