@@ -193,3 +193,20 @@ def validate_config(cfg: Any) -> Any:
         if new is not value:
             changes[f.name] = new
     return dataclasses.replace(cfg, **changes) if changes else cfg
+
+
+def typed_from_json(cls, d: dict, section: str | None = None):
+    """``cls(**d)`` for a dataclass whose fields all have defaults, each value checked against the type of
+    the field's default (an int accepted for a float); raises TypeError naming the bad key or value
+    (``section``: the name used for the object, default the class name)."""
+    name = section or cls.__name__
+    if not isinstance(d, dict):
+        raise TypeError(f"{name} section is {type(d).__name__}, expected an object")
+    defaults = cls()
+    for k, v in d.items():
+        if not hasattr(defaults, k):
+            raise TypeError(f"unknown {name} key {k!r}")
+        want = type(getattr(defaults, k))
+        if not (type(v) is want or (want is float and type(v) is int)):
+            raise TypeError(f"{k} is {v!r}, expected {want.__name__}")
+    return cls(**d)

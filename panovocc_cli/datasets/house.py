@@ -86,16 +86,7 @@ class _CorridorHouse(_House):
                     n_win += self._add_opening(room, side, "window", rng.uniform(0.9, 1.5), rng.uniform(0.9, 1.0), z1)
             if n_win == 0:
                 raise _Retry
-        for room in self.rooms:
-            ko = []
-            for op in room.openings:
-                if op.kind in ("door", "entrance"):
-                    ko.append((room.aabb(op.side, op.s0 - 0.35, op.s1 + 0.35, -1.25, 0.0), -1.0))
-                else:
-                    ko.append((room.aabb(op.side, op.s0 - 0.1, op.s1 + 0.1, -0.4, 0.0), op.z0 - 0.03))
-                    for a, b in self._curtain_spans(room, op):
-                        self.obstacles.append(room.aabb(op.side, a, b, -0.16, 0.0))
-            self.keepout[room.idx] = ko
+        self._set_keepouts()
 
     def furnish(self) -> None:
         for room in self.rooms:

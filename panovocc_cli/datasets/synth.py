@@ -373,6 +373,10 @@ class _House:
                     n_win += self._add_opening(room, side, "window", w, z0, z1)
             if n_win == 0:
                 raise _Retry
+        self._set_keepouts()
+
+    def _set_keepouts(self) -> None:
+        """Per room, the boxes in front of its doors and windows that furniture keeps out of, and the curtains as obstacles."""
         for room in self.rooms:
             ko = []  # (box, tallest item allowed there)
             for op in room.openings:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, option
+from ..config import DEFAULT_SEED, option, typed_from_json
 from ..errors import PanovoccError
 
 
@@ -55,18 +55,7 @@ class AblationParams:
     @classmethod
     def from_json(cls, d: dict | None) -> "AblationParams":
         """From a map config's ``ablation`` section (absent: the defaults, no ablation)."""
-        if d is None:
-            return cls()
-        if not isinstance(d, dict):
-            raise TypeError(f"ablation section is {type(d).__name__}, expected an object")
-        defaults = cls()
-        for k, v in d.items():
-            if not hasattr(defaults, k):
-                raise TypeError(f"unknown ablation key {k!r}")
-            want = type(getattr(defaults, k))
-            if not (type(v) is want or (want is float and type(v) is int)):
-                raise TypeError(f"{k} is {v!r}, expected {want.__name__}")
-        return cls(**d)
+        return cls() if d is None else typed_from_json(cls, d, "ablation")
 
 
 def drifted_poses(T_world_cam: np.ndarray, p: AblationParams) -> np.ndarray:

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..config import DEFAULT_SEED, MAX_STRIDE, option
+from ..config import DEFAULT_SEED, MAX_STRIDE, option, typed_from_json
 from ..errors import PanovoccError
 from ..semantics.gsc import GSCParams
 from ..semantics.params import EvidenceWeights
@@ -157,8 +157,8 @@ class MapConfig:
             raise PanovoccError(f"format_version {version!r}: this panovocc reads map formats 1 to {FORMAT_VERSION} "
                                 "(a newer panovocc wrote it, or the file is corrupt)", where)
         try:
-            g = _typed(GeometryParams, d["geometry"])
-            o = _typed(OccupancyParams, d["occupancy"])
+            g = typed_from_json(GeometryParams, d["geometry"])
+            o = typed_from_json(OccupancyParams, d["occupancy"])
             s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
@@ -178,18 +178,6 @@ class MapConfig:
                             weights=s.weights)
 
 
-def _typed(cls, d: dict):
-    """``cls(**d)`` with each value checked against the type of the field's default (int accepted for float)."""
-    if not isinstance(d, dict):
-        raise TypeError(f"{cls.__name__} section is {type(d).__name__}, expected an object")
-    defaults = cls()
-    for k, v in d.items():
-        if not hasattr(defaults, k):
-            raise TypeError(f"unknown {cls.__name__} key {k!r}")
-        want = type(getattr(defaults, k))
-        if not (type(v) is want or (want is float and type(v) is int)):
-            raise TypeError(f"{k} is {v!r}, expected {want.__name__}")
-    return cls(**d)
 
 
 
