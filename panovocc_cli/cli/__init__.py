@@ -62,10 +62,11 @@ def load_commands(argv: list[str] | None = None) -> typer.Typer:
         app._panovocc_version = True
     if names is COMMAND_MODULES:  # --help lists them in module order, whatever was loaded first
 
-        def order(info):
-            mod = getattr(info.callback, "__module__", "") if hasattr(info, "callback") else ""
-            mod = mod or getattr(getattr(info, "typer_instance", None), "_panovocc_module", "")
-            tail = mod.rsplit(".", 1)[-1]
+        def order(info):  # a command by its callback's module, a group by its first command's
+            cb = getattr(info, "callback", None)
+            if cb is None:
+                cb = next((c.callback for c in getattr(info.typer_instance, "registered_commands", ())), None)
+            tail = getattr(cb, "__module__", "").rsplit(".", 1)[-1]
             return COMMAND_MODULES.index(tail) if tail in COMMAND_MODULES else len(COMMAND_MODULES)
 
         app.registered_commands.sort(key=order)

@@ -112,18 +112,20 @@ class FrameDelta:
 
     def __post_init__(self):
         self.parts = tuple(p for p in self.parts if p is not None and len(p) and p.channels)
-        names = [name for p in self.parts for name in p.channels]
-        if len(set(names)) < len(names):
-            dup = next(n for n in names if names.count(n) > 1)
-            raise ValueError(f"channel {dup} produced by two contributors")
+        _check_disjoint(self.parts)
 
     def __len__(self) -> int:
         """Rows over all parts (0: the frame changes nothing)."""
         return sum(len(p) for p in self.parts)
 
-    def merged(self) -> Delta:
-        """The same contribution as one Delta over the union of the parts' keys."""
-        return merge_deltas(self.parts)
+
+
+def _check_disjoint(parts: Sequence[Delta]) -> None:
+    """Contributors' deltas must not share a channel name (ValueError naming it)."""
+    names = [name for p in parts for name in p.channels]
+    if len(set(names)) < len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise ValueError(f"channel {dup} produced by two contributors")
 
 
 def merge_deltas(parts: Sequence[Delta]) -> Delta:
@@ -137,10 +139,7 @@ def merge_deltas(parts: Sequence[Delta]) -> Delta:
     keys.sort(kind="stable")  # each part's keys are sorted: a linear merge of runs (np.unique hashes, ~20x slower)
     if len(keys) > 1:
         keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]
-    names = [name for p in parts for name in p.channels]
-    if len(set(names)) < len(names):
-        dup = next(n for n in names if names.count(n) > 1)
-        raise ValueError(f"channel {dup} produced by two contributors")
+    _check_disjoint(parts)
     # every channel a column slice of one (n, total width) matrix: VoxelMemory.add takes it without a copy
     full = np.zeros((len(keys), sum(a.shape[1] for p in parts for a in p.channels.values())), np.int64)
     out = {}

@@ -136,9 +136,7 @@ class DeltaStore:
         if fid in self._committed:
             path = mapstore.staged_path(path)
             self._staged[fid] = path
-        if self._writer is None:
-            self._writer = _BackgroundWriter()
-        self._writer.submit(mapstore.write_delta, path, [(p.keys, p.channels) for p in delta.parts], T)
+        self._submit(mapstore.write_delta, path, [(p.keys, p.channels) for p in delta.parts], T)
 
     def drop(self, frame_id: int) -> None:
         """Forget frame ``frame_id`` (a committed file is deleted at the next commit)."""
@@ -157,6 +155,12 @@ class DeltaStore:
             self._doomed.add(fid)
         else:
             mapstore.delta_path(self.folder, fid).unlink(missing_ok=True)
+
+    def _submit(self, fn, *args) -> None:
+        """Run ``fn(*args)`` on the writer thread (started on first use), after the writes queued before it."""
+        if self._writer is None:
+            self._writer = _BackgroundWriter()
+        self._writer.submit(fn, *args)
 
     def flush(self) -> None:
         """Wait for the pending delta write (re-raises its error)."""
@@ -191,9 +195,7 @@ class DeltaStore:
                 mapstore.delta_path(folder, fid).unlink(missing_ok=True)
 
         if background:
-            if self._writer is None:
-                self._writer = _BackgroundWriter()
-            self._writer.submit(finish)
+            self._submit(finish)
         else:
             finish()
         self._staged.clear()
