@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
-from conftest import run_cli, run_sub, snapshot
+from cli_helpers import run_cli, run_sub, snapshot
 
 
 # ---------------------------------------------------------------------------------------------

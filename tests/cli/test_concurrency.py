@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import PANOVOCC, run_cli, snapshot
+from cli_helpers import PANOVOCC, run_cli, snapshot
 
 from test_bad_inputs import assert_one_line_refusal
 
