@@ -61,6 +61,9 @@ class BaselineConfig:
     out: Path = option(argument=True, metavar="OUT", help="Output folder: prediction.npz, baseline.json, "
                                                            "config.json (and streams/ or frames/).")
     poses: Path | None = option(None, help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt.")
+    poses_align: str = option("none", choices=("none", "se3", "sim3"),
+                              help="Align the --poses trajectory to SEQ/poses.txt first (Umeyama), as for map: "
+                                   "what the benchmark does with the SLAM front end's poses.")
     voxel_size: float = option(DEFAULT_VOXEL_SIZE, min=0, min_open=True, max=MAX_VOXEL_SIZE,
                                help="Voxel edge length h, metres.")
     max_range: float = option(12.0, min=0, min_open=True, help="Depths farther than this are ignored, metres.")
@@ -99,6 +102,7 @@ def _map_config(cfg: BaselineConfig, seq):
     from ..mapping.pipeline import resolve, resolve_semantic
 
     mc = MapConfig(seq=str(cfg.seq), out=str(cfg.out), poses=None if cfg.poses is None else str(cfg.poses),
+                   poses_align=cfg.poses_align,
                    geometry=GeometryParams(voxel_size=cfg.voxel_size, max_range=cfg.max_range),
                    semantic_stride=cfg.semantic_stride,
                    semantic=SemanticParams(segmenter=cfg.segmenter, vocab=cfg.vocab, noise=cfg.noise, seed=cfg.seed,
@@ -126,6 +130,12 @@ def run_baseline(cfg: BaselineConfig) -> dict:
         raise PanovoccError(f"--gt scores single-pano's frames in their own boxes; score {cfg.name} with "
                             f"panovocc eval {cfg.out}/prediction.npz GT.npz")
     seq = Sequence(cfg.seq, cfg.poses)
+    if cfg.poses_align != "none":  # the map's reading of --poses with --poses-align (Umeyama to SEQ/poses.txt)
+        from ..mapping.config import MapConfig
+        from ..mapping.pipeline import run_poses
+
+        seq = Sequence(cfg.seq, cfg.poses, run_poses(MapConfig(seq=str(cfg.seq), out=str(cfg.out), poses=(
+            None if cfg.poses is None else str(cfg.poses)), poses_align=cfg.poses_align)))
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera is {seq.meta.camera!r}; the baselines read panoramic (erp) sequences",
                             Path(cfg.seq) / "meta.json")

@@ -100,7 +100,11 @@ def build_sweep(splits: list[Split], methods: list[Method], scale: str) -> Sweep
 
 def _prediction(m: Method, split: Split, sc: SceneSpec, render: Task, code: str) -> Task | None:
     """The task that makes method ``m``'s prediction on scene ``sc``."""
-    if m.runner == "baseline":
+    if m.runner == "baseline":  # on the split's poses, as PanOVOcc's row (SLAM: the same aligned trajectory)
+        if split.poses == "slam":
+            slam = Task("poses", {"source": "slam"}, (render,), _label("poses", split, sc, "slam"), code)
+            return Task("baseline", {"name": m.options["name"], "seed": sc.seed, "poses": "slam"}, (render, slam),
+                        _label("baseline", split, sc, m.name), code)
         return Task("baseline", {"name": m.options["name"], "seed": sc.seed}, (render,),
                     _label("baseline", split, sc, m.name), code)
     opts = m.map_options()

@@ -373,11 +373,16 @@ def _baseline(p: dict, out: Path, deps: list[Path], cache: Path):
     from ..baselines.run import BaselineConfig, run_baseline  # type: ignore[attr-defined]
 
     seq = deps[0] / "seq"
+    poses, align, pose_flag = None, "none", ""
+    if p.get("poses") == "slam":  # the SLAM front end's trajectory, aligned as for map (Umeyama SE(3))
+        poses, align = deps[1] / "poses.txt", "se3"
+        pose_flag = f" --poses {_rel(poses, cache)} --poses-align se3"
     s = run_baseline(BaselineConfig(name=p["name"], seq=seq, out=out / "out", segmenter="simulated",  # type: ignore
-                                    seed=p["seed"], progress=False))
+                                    seed=p["seed"], poses=poses, poses_align=align, progress=False))
     for sub in ("streams", "frames"):  # per-view / per-frame grids: not read by the tables
         shutil.rmtree(out / "out" / sub, ignore_errors=True)
-    cmd = f"panovocc baselines run {p['name']} {_rel(seq, cache)} {_rel(out / 'out', cache)} --seed {p['seed']}"
+    cmd = (f"panovocc baselines run {p['name']} {_rel(seq, cache)} {_rel(out / 'out', cache)} --seed {p['seed']}"
+           + pose_flag)
     keep = ("frames", "occupied", "classed", "views", "view_size")
     return {"prediction": "out/prediction.npz"}, cmd, {k: v for k, v in _plain(s).items() if k in keep}
 

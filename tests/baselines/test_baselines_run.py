@@ -186,3 +186,27 @@ def test_bad_inputs_write_nothing(room, tmp_path, cli, argv, expect):
     code, _, err = cli(["baselines", "run", *[a.format(room=room, t=tmp_path) for a in argv], "--quiet"])
     assert code == 2 and expect.lower() in err.lower() and "Traceback" not in err
     assert not (tmp_path / "o").exists() and sorted(p.name for p in room.rglob("*")) == before
+
+
+def test_poses_align_undoes_a_rigid_motion_of_the_trajectory(room, tmp_path, cli):
+    """--poses FILE --poses-align se3 (the benchmark's SLAM rows): a trajectory given in another world frame
+    (the true poses moved rigidly) maps to the same grid as the true poses; without alignment it does not."""
+    from panovocc_cli.io.poses import write_poses
+    from panovocc_cli.io.sequence import Sequence
+
+    c, s = math.cos(0.7), math.sin(0.7)
+    M = np.array([[c, -s, 0, 1.5], [s, c, 0, -0.4], [0, 0, 1, 0.3], [0, 0, 0, 1.0]])
+    moved = tmp_path / "moved.txt"
+    write_poses(moved, M @ Sequence(room).poses)
+    common = ["--quiet", "--segmenter", "none"]
+    assert cli(["baselines", "run", "forward-only", room, tmp_path / "ref"] + common)[0] == 0
+    code, _, err = cli(["baselines", "run", "forward-only", room, tmp_path / "al", "--poses", moved,
+                        "--poses-align", "se3"] + common)
+    assert code == 0, err
+    assert cli(["baselines", "run", "forward-only", room, tmp_path / "raw", "--poses", moved] + common)[0] == 0
+    ref, al, raw = (read_grid(tmp_path / n / "prediction.npz") for n in ("ref", "al", "raw"))
+    occ = {n: {tuple(v) for v in np.round(occupied_centres(g) / H).astype(int)} for n, g in
+           (("ref", ref), ("al", al), ("raw", raw))}
+    assert len(occ["ref"]) > 100
+    assert len(occ["ref"] ^ occ["al"]) <= 0.01 * len(occ["ref"])  # Umeyama's float round-off may move a voxel
+    assert len(occ["ref"] & occ["raw"]) < 0.5 * len(occ["ref"])

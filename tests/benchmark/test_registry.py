@@ -64,3 +64,22 @@ def test_splits_scenes_are_fixed_and_nested_across_scales():
     assert len(holo.scenes("full")) >= 5 and all(s.house and s.noise == "realistic" for s in holo.scenes("full"))
     assert holo.poses == "slam" and holo.gt == "lifted" and holo.classes == "eval12"
     assert set(SCALE_SPECS) == {"full", "small", "tiny"}
+
+
+def test_baselines_use_the_splits_poses():
+    """On a SLAM split the baselines map with the same (aligned) SLAM trajectory as PanOVOcc's row; on a
+    true-pose split with the sequence's own poses."""
+    from panovocc_cli.benchmark.sweep import build_sweep
+
+    sw = build_sweep(select_splits("all"), select_methods("panovocc,persp-tsdf,single-pano"), "tiny")
+    base = [t for t in sw.tasks if t.kind == "baseline"]
+    maps = {t.label: t for t in sw.tasks if t.kind == "map"}
+    assert base
+    for t in base:
+        if "pan-holo-synth" in t.label:
+            slam = [d for d in t.deps if d.kind == "poses"]
+            assert t.params["poses"] == "slam" and len(slam) == 1 and slam[0].params == {"source": "slam"}
+            ours = [m for label, m in maps.items() if "pan-holo-synth" in label and "panovocc" in label]
+            assert any(slam[0].key in [d.key for d in m.deps] for m in ours)  # the very same poses task
+        else:
+            assert "poses" not in t.params and [d.kind for d in t.deps] == ["render"]
