@@ -47,7 +47,7 @@ class BenchConfig:
     voxel_size: float = DEFAULT_VOXEL_SIZE  # metres
     seed: int = DEFAULT_SEED
     repeats: int = option(5, min=1, help="Timed passes of each side (median reported).")  # not a CLI option
-    process_repeats: int = option(3, min=1, help="Timed whole-process runs of each command (median reported).")
+    process_repeats: int = option(5, min=1, help="Timed whole-process runs of each command (median reported).")
 
 
 def cube_face_maps(height: int, width: int, face: int):
