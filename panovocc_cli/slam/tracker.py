@@ -66,22 +66,33 @@ class SlamParams:
     max_iterations: int = 30
     min_points: int = 300           # downsampled points below which a frame cannot be placed
     min_fitness: float = 0.5        # inlier fraction below which tracking has failed
-    max_step_m: float = 0.6         # largest correction of the prediction accepted while tracking
-    max_step_deg: float = 30.0
+    max_step_m: float = 1.0         # largest correction of an initial guess accepted while tracking
+    max_step_deg: float = 90.0      # (a panorama registers across large turns: a turn is a shift of columns)
+    zero_motion_init: bool = True   # also register from the previous pose (no motion); the better fit wins
     kf_trans_m: float = 0.4
     kf_rot_deg: float = 20.0
     kf_fitness: float = 0.85
     check_m: float = 0.01           # frame-to-keyframe vs frame-to-previous-frame disagreement that promotes
     check_deg: float = 0.5          # the previous frame to a keyframe (0 = no check)
-    loop_radius_m: float = 1.5
+    loop_radius_m: float = 1.5      # keyframes this close (plus the odometry's uncertainty) may overlap
     loop_min_gap: int = 6           # keyframes between a loop's two ends
     loop_candidates: int = 3
     loop_fitness: float = 0.6
     loop_max_corr_m: float = 0.2
+    odom_sigma_per_m: float = 0.02  # odometry drift (1 sigma) per metre travelled: translation, m / m,
+    odom_sigma_deg_per_m: float = 0.5   # and rotation, degrees / m
+    odom_min_sigma_m: float = 0.05  # floors of the relative uncertainty of two keyframes
+    odom_min_sigma_deg: float = 2.0
+    loop_sigmas: float = 3.0        # a loop's correction must lie within this many sigmas of the odometry
+    loop_optimise_m: float = 0.01   # optimise at once only when a new loop edge disagrees with the estimate
+    loop_optimise_deg: float = 0.3  # by more than this (else it waits in the graph for the next optimisation)
     reloc_candidates: int = 5
-    reloc_fitness: float = 0.6
-    revise_trans_m: float = 0.001
-    revise_rot_deg: float = 0.05
+    reloc_fitness: float = 0.6      # inlier fraction within loop_max_corr_m of the best relocalisation,
+    reloc_margin: float = 0.1       # and its lead over every distinct pose hypothesis
+    reloc_distinct_m: float = 0.3   # hypotheses further apart than this, or than reloc_distinct_deg, are distinct
+    reloc_distinct_deg: float = 15.0
+    revise_trans_m: float = 0.01    # a frame moved further than this by an optimisation is revised in the map
+    revise_rot_deg: float = 0.2
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
 
     def check(self) -> "SlamParams":
@@ -120,11 +131,19 @@ class _Keyframe:
     frame_id: int
     cloud: Cloud
     T_world: np.ndarray
+    odo_m: float = 0.0  # path length along the odometry edges from the first keyframe, metres
 
 
 def _angle_deg(R: np.ndarray) -> float:
     c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
     return float(np.degrees(np.arccos(c)))
+
+
+def _yaw(angle: float) -> np.ndarray:
+    """(4, 4) rotation by ``angle`` radians about the camera's vertical (y) axis: a change of heading."""
+    T = np.eye(4)
+    T[:3, :3] = so3_exp([0.0, angle, 0.0])
+    return T
 
 
 def _differs(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) -> bool:
@@ -187,10 +206,13 @@ class Tracker:
         if not self.keyframes:
             self.keyframes.append(_Keyframe(fid, cloud, self.T_world_first.copy()))
             return self._place(fid, 0, np.eye(4), KEYFRAME, 1.0, cloud)
-        pred = self._last[1] @ self._velocity if self._last is not None else self.keyframes[self._ref].T_world
+        last = self._last[1] if self._last is not None else self.keyframes[self._ref].T_world
+        guesses = [last @ self._velocity]  # constant velocity
+        if p.zero_motion_init and _differs(guesses[0], last, 0.05, 2.0):
+            guesses.append(last)  # no motion: where a turn or a stop breaks the constant velocity
         kf = self.keyframes[self._ref]
-        init = np.linalg.inv(kf.T_world) @ pred
-        r = self._register(kf.cloud, cloud, init)
+        r, init = self._best_fit(kf.cloud, cloud, [np.linalg.inv(kf.T_world) @ g for g in guesses])
+        pred = kf.T_world @ init  # the guess that won
         status, k = TRACKED, self._ref
         prev = self._prev
         if p.check_m > 0 and prev is not None and prev[0] == fid - 1 and prev[0] != kf.frame_id \
@@ -204,12 +226,14 @@ class Tracker:
                     kf.T_world @ r.T_target_source, T_prev @ r2.T_target_source, p.check_m, p.check_deg):
                 k = self._promote_previous()
                 kf, r, init = self.keyframes[k], r2, np.linalg.inv(T_prev) @ pred
-        if not self._accept(r, init, p.min_fitness):
-            found = self._relocalise(cloud, pred)
+        tracked = (k, r) if self._accept(r, init, p.min_fitness) else None
+        if tracked is None or r.fitness < p.kf_fitness:
+            # failed, or a poor fit (after a fast turn or a jump the guesses may end in a wrong minimum):
+            # relocalise, the tracked result competing with the other hypotheses
+            found, why = self._relocalise(cloud, pred, tracked)
             if found is None:
-                return self._lose(fid, f"tracking failed (fitness {r.fitness:.2f}) and no keyframe relocalised it")
-            k, r = found
-            status = RELOCALISED
+                return self._lose(fid, f"tracking failed (fitness {r.fitness:.2f}) and relocalisation {why}")
+            k, r, status = found
         return self._place(fid, k, r.T_target_source, status, r.fitness, cloud)
 
     def _promote_previous(self) -> int:
@@ -218,7 +242,8 @@ class Tracker:
         fid, cloud = self._prev
         k, T_kf = self._placed[fid]
         new = len(self.keyframes)
-        self.keyframes.append(_Keyframe(fid, cloud, self.keyframes[k].T_world @ T_kf))
+        self.keyframes.append(_Keyframe(fid, cloud, self.keyframes[k].T_world @ T_kf,
+                                        self.keyframes[k].odo_m + float(np.linalg.norm(T_kf[:3, 3]))))
         info = self.reg.information(self.keyframes[k].cloud, cloud, T_kf, p.max_corr_m)
         self._edges.append((new, k, T_kf.copy(), info, False))
         self._placed[fid] = (new, np.eye(4))
@@ -236,6 +261,18 @@ class Tracker:
                 r = dataclasses.replace(f, fitness=r.fitness)
         return r
 
+    def _best_fit(self, target: Cloud, source: Cloud, inits: list):
+        """Register from each initial guess (4, 4) ``T_target_source``; returns (result, its guess): the
+        accepted result (:meth:`_accept`) with the highest fitness (the first guess on a tie), else the
+        fittest one."""
+        best = None
+        for init in inits:
+            r = self._register(target, source, init)
+            key = (self._accept(r, init, self.params.min_fitness), r.fitness)
+            if best is None or key > best[0]:
+                best = (key, r, init)
+        return best[1], best[2]
+
     def _accept(self, r, init: np.ndarray, min_fitness: float) -> bool:
         p = self.params
         if r.fitness < min_fitness:
@@ -250,25 +287,53 @@ class Tracker:
         self._prev = None
         return TrackStep(fid, LOST, None, reason=reason)
 
-    def _relocalise(self, cloud: Cloud, pred: np.ndarray):
-        """(keyframe index, RegResult) of the best registration to a nearby keyframe, or None."""
+    def _relocalise(self, cloud: Cloud, pred: np.ndarray, tracked=None):
+        """((keyframe index, RegResult, status), "") of the clearly best registration to a nearby keyframe,
+        or (None, why not).
+
+        Every hypothesis (each of the ``reloc_candidates`` keyframes nearest the prediction, from the
+        prediction and from four headings; plus ``tracked``, (keyframe index, RegResult), the tracking's
+        own poor fit, if any) is refined within ``loop_max_corr_m``, whose inlier fraction scores it. The
+        best is accepted (status ``relocalised``) only when it reaches ``reloc_fitness`` and leads every
+        *distinct* hypothesis (a world pose more than ``reloc_distinct_m`` or ``reloc_distinct_deg`` away)
+        by ``reloc_margin``: in look-alike places (a symmetric room, rooms alike off a corridor) two poses
+        fit about equally, and the frame is then lost rather than placed in the wrong one. Where no other
+        pose beats ``tracked`` clearly, the tracked result stands (status ``tracked``): the motion guess
+        breaks the tie."""
         p = self.params
+        hyps = []  # (score, keyframe index, RegResult, T_world, is the tracked result)
+
+        def add(k: int, r, is_tracked: bool):
+            if r.fitness < p.min_fitness or not np.all(np.isfinite(r.T_target_source)):
+                return
+            kf = self.keyframes[k]
+            f = self.reg.align(kf.cloud, cloud, r.T_target_source, p.loop_max_corr_m)
+            if np.all(np.isfinite(f.T_target_source)):
+                hyps.append((f.fitness, k, f, kf.T_world @ f.T_target_source, is_tracked))
+
+        if tracked is not None:
+            add(tracked[0], tracked[1], True)
         pos = np.array([k.T_world[:3, 3] for k in self.keyframes])
         order = np.argsort(np.linalg.norm(pos - pred[:3, 3], axis=1), kind="stable")[: p.reloc_candidates]
-        best = None
         for k in order:
             kf = self.keyframes[int(k)]
-            inits = [np.linalg.inv(kf.T_world) @ pred]
-            for yaw in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi):  # headings about the camera's vertical (-y) axis
-                T = np.eye(4)
-                T[:3, :3] = so3_exp([0.0, yaw, 0.0])
-                inits.append(T)
-            for init in inits:
-                r = self._register(kf.cloud, cloud, init)
-                if r.fitness >= p.reloc_fitness and np.all(np.isfinite(r.T_target_source)) and (
-                        best is None or r.fitness > best[1].fitness):
-                    best = (int(k), r)
-        return best
+            inits = [np.linalg.inv(kf.T_world) @ pred] + [_yaw(a) for a in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi)]
+            for init in inits:  # headings about the keyframe's vertical axis: a panorama's one ambiguity worth trying
+                add(int(k), self._register(kf.cloud, cloud, init), False)
+        if not hyps:
+            return None, "found no fit"
+        best = max(hyps, key=lambda h: h[0])  # the first of equals (the tracked result is first)
+        rival = max((h[0] for h in hyps if _differs(best[3], h[3], p.reloc_distinct_m, p.reloc_distinct_deg)),
+                    default=0.0)
+        mine = [h for h in hyps if h[4]]
+        if mine and (best[4] or not _differs(best[3], mine[0][3], p.reloc_distinct_m, p.reloc_distinct_deg)
+                     or best[0] - mine[0][0] < p.reloc_margin):
+            return (tracked[0], tracked[1], TRACKED), ""
+        if best[0] < p.reloc_fitness:
+            return None, f"found no good fit (best {best[0]:.2f})"
+        if best[0] - rival < p.reloc_margin:
+            return None, f"was ambiguous (best {best[0]:.2f}, another pose {rival:.2f})"
+        return (best[1], best[2], RELOCALISED), ""
 
     def _place(self, fid: int, k: int, T_kf_frame: np.ndarray, status: str, fitness: float, cloud: Cloud) -> TrackStep:
         p = self.params
@@ -283,13 +348,13 @@ class Tracker:
                                     or _angle_deg(T_kf_frame[:3, :3]) > p.kf_rot_deg or fitness < p.kf_fitness))
         if make_kf:
             new = len(self.keyframes)
-            self.keyframes.append(_Keyframe(fid, cloud, T_world.copy()))
+            self.keyframes.append(_Keyframe(fid, cloud, T_world.copy(), kf.odo_m + float(np.linalg.norm(T_kf_frame[:3, 3]))))
             info = self.reg.information(kf.cloud, cloud, T_kf_frame, p.max_corr_m)
             self._edges.append((new, k, T_kf_frame.copy(), info, False))
             self._placed[fid] = (new, np.eye(4))
             self._ref = new
-            loops = self._close_loops(new)
-            if loops:
+            loops, urgent = self._close_loops(new)
+            if urgent:
                 self._optimise()
                 revisions = self._revisions(exclude=fid)
             T_world = self.pose(fid)
@@ -308,16 +373,32 @@ class Tracker:
         return TrackStep(fid, status, T_world.copy(), float(fitness), revisions, loops)
 
     # -- loops and the pose graph -----------------------------------------------------------------
-    def _close_loops(self, new: int) -> list[tuple[int, int]]:
+    def _loop_sigma(self, a: int, b: int) -> tuple[float, float]:
+        """Relative uncertainty (1 sigma: metres, degrees) of keyframes ``a`` and ``b`` by odometry: grows
+        with the path length between them, floored (``odom_*`` parameters)."""
+        p = self.params
+        L = abs(self.keyframes[a].odo_m - self.keyframes[b].odo_m)
+        return max(p.odom_min_sigma_m, p.odom_sigma_per_m * L), max(p.odom_min_sigma_deg, p.odom_sigma_deg_per_m * L)
+
+    def _close_loops(self, new: int) -> tuple[list[tuple[int, int]], bool]:
+        """Loop edges of keyframe ``new``: (list of (frame id, frame id), whether any needs an optimisation now).
+
+        Candidates: keyframes at least ``loop_min_gap`` back whose estimated position is within
+        ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas (:meth:`_loop_sigma`), nearest first.
+        Verified by registration from the current estimate; accepted when ``loop_fitness`` of the points
+        match within ``loop_max_corr_m`` and the correction of the estimate lies within ``loop_sigmas``
+        sigmas (a look-alike place elsewhere needs a larger one)."""
         p = self.params
         cur = self.keyframes[new]
-        old = self.keyframes[: max(0, new - p.loop_min_gap)]
-        if not old:
-            return []
-        pos = np.array([k.T_world[:3, 3] for k in old])
+        n_old = max(0, new - p.loop_min_gap)
+        if n_old == 0 or p.loop_candidates <= 0:
+            return [], False
+        pos = np.array([k.T_world[:3, 3] for k in self.keyframes[:n_old]])
         dist = np.linalg.norm(pos - cur.T_world[:3, 3], axis=1)
-        order = [int(i) for i in np.argsort(dist, kind="stable") if dist[i] <= p.loop_radius_m][: p.loop_candidates]
-        found = []
+        sig = [self._loop_sigma(new, j) for j in range(n_old)]
+        near = [j for j in range(n_old) if dist[j] <= p.loop_radius_m + p.loop_sigmas * sig[j][0]]
+        order = sorted(near, key=lambda j: (dist[j], j))[: p.loop_candidates]
+        found, urgent = [], False
         for j in order:
             kf = self.keyframes[j]
             init = np.linalg.inv(kf.T_world) @ cur.T_world
@@ -325,13 +406,16 @@ class Tracker:
             if r.fitness < p.min_fitness or not np.all(np.isfinite(r.T_target_source)):
                 continue
             r = self.reg.align(kf.cloud, cur.cloud, r.T_target_source, p.loop_max_corr_m)
-            if r.fitness < p.loop_fitness or _differs(init, r.T_target_source, p.loop_radius_m, 45.0):
+            s_m, s_deg = sig[j]
+            if r.fitness < p.loop_fitness or not np.all(np.isfinite(r.T_target_source)) or _differs(
+                    init, r.T_target_source, p.loop_sigmas * s_m, p.loop_sigmas * s_deg):
                 continue
             info = self.reg.information(kf.cloud, cur.cloud, r.T_target_source, p.loop_max_corr_m)
             self._edges.append((new, j, r.T_target_source.copy(), info, True))
             found.append((cur.frame_id, kf.frame_id))
+            urgent = urgent or _differs(init, r.T_target_source, p.loop_optimise_m, p.loop_optimise_deg)
         self.loops.extend(found)
-        return found
+        return found, urgent
 
     def _optimise(self) -> None:
         """Open3D global optimisation of the keyframe pose graph; keyframe poses updated in place."""
