@@ -91,6 +91,8 @@ class SlamParams:
     reloc_margin: float = 0.1       # and its lead over every distinct pose hypothesis
     reloc_distinct_m: float = 0.3   # hypotheses further apart than this, or than reloc_distinct_deg, are distinct
     reloc_distinct_deg: float = 15.0
+    reloc_voxel_m: float = 0.25     # relocalisation screens its hypotheses with the frame at this voxel size,
+    reloc_refine: int = 4           # then refines this many distinct ones at full resolution
     revise_trans_m: float = 0.01    # a frame moved further than this by an optimisation is revised in the map
     revise_rot_deg: float = 0.2
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
@@ -168,6 +170,7 @@ class Tracker:
         self._rays = erp.ray_directions(width, height)
         self._shape = (height, width)
         self.reg = Registration(p.backend, p.voxel_m, p.max_iterations, p.threads)
+        self._screen = Registration(p.backend, p.reloc_voxel_m, 10, p.threads)  # screening: 10 iterations
         self.T_world_first = LEVEL_FIRST.copy() if T_world_first is None else np.asarray(T_world_first, np.float64)
         self.keyframes: list[_Keyframe] = []
         self._edges: list[tuple[int, int, np.ndarray, np.ndarray, bool]] = []  # (source kf, target kf, T_t_s, info, uncertain)
@@ -304,8 +307,6 @@ class Tracker:
         hyps = []  # (score, keyframe index, RegResult, T_world, is the tracked result)
 
         def add(k: int, r, is_tracked: bool):
-            if r.fitness < p.min_fitness or not np.all(np.isfinite(r.T_target_source)):
-                return
             kf = self.keyframes[k]
             f = self.reg.align(kf.cloud, cloud, r.T_target_source, p.loop_max_corr_m)
             if np.all(np.isfinite(f.T_target_source)):
@@ -313,13 +314,26 @@ class Tracker:
 
         if tracked is not None:
             add(tracked[0], tracked[1], True)
+        # screening: every hypothesis registered with a coarse copy of the frame (a wrong start costs many
+        # iterations at full resolution); the best few distinct ones are then refined at full resolution
+        coarse = self._screen.prepare(cloud.points)
         pos = np.array([k.T_world[:3, 3] for k in self.keyframes])
         order = np.argsort(np.linalg.norm(pos - pred[:3, 3], axis=1), kind="stable")[: p.reloc_candidates]
+        screened = []
         for k in order:
             kf = self.keyframes[int(k)]
             inits = [np.linalg.inv(kf.T_world) @ pred] + [_yaw(a) for a in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi)]
             for init in inits:  # headings about the keyframe's vertical axis: a panorama's one ambiguity worth trying
-                add(int(k), self._register(kf.cloud, cloud, init), False)
+                r = self._screen.align(kf.cloud, coarse, init, p.max_corr_m)
+                if r.fitness >= p.min_fitness and np.all(np.isfinite(r.T_target_source)):
+                    screened.append((r.fitness, int(k), r, kf.T_world @ r.T_target_source))
+        kept: list = []
+        for h in sorted(screened, key=lambda h: -h[0]):  # stable: the first of equals
+            if len(kept) < p.reloc_refine and all(
+                    _differs(h[3], g[3], p.reloc_distinct_m, p.reloc_distinct_deg) for g in kept):
+                kept.append(h)
+        for h in kept:
+            add(h[1], h[2], False)
         if not hyps:
             return None, "found no fit"
         best = max(hyps, key=lambda h: h[0])  # the first of equals (the tracked result is first)
