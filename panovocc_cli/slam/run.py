@@ -82,3 +82,57 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     write_text(out / SLAM_JSON, json.dumps(info, indent=2) + "\n")
     summary["slam"] = info
     return summary
+
+
+def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None = None) -> dict:
+    """Only the poses: the front end over ``seq``'s depth frames, no map (what a pipeline that maps again
+    with aligned poses needs, e.g. the benchmark's SLAM split: it skips the map's integration and revisions).
+
+    Writes into the folder ``out`` (created): ``poses.txt`` (NICE-SLAM form, one line a frame; a frame the
+    tracker could not place has the last placed frame's pose, identity before the first), the same file
+    ``map --poses slam`` writes for the same sequence; ``trajectory.tum`` and ``slam.json`` as there
+    (without the map's fields). SEQ/poses.txt is never read.
+
+    Returns
+    -------
+    info : slam.json's content
+    """
+    import time
+
+    from ..io.atomic import write_text
+    from ..io.poses import write_poses, write_tum
+    from ..io.sequence import Sequence, read_meta
+
+    n = read_meta(seq).frames
+    sq = Sequence(seq, poses=np.tile(np.eye(4), (n, 1, 1)))
+    tracker = Tracker(sq.meta.width, sq.meta.height, params)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    poses, last = np.tile(np.eye(4), (n, 1, 1)), np.eye(4)
+    unplaced, reasons, revisions, t_track = [], {}, 0, 0.0
+    for i in range(n):
+        depth = sq.depth(i)
+        t0 = time.perf_counter()
+        step = tracker.track(i, depth)
+        t_track += time.perf_counter() - t0
+        for fid, T in step.revisions:
+            poses[fid] = T
+        revisions += len(step.revisions)
+        if step.placed:
+            poses[i] = last = step.T_world_cam
+        else:
+            poses[i] = last
+            unplaced.append(i)
+        if step.reason:
+            reasons[str(i)] = step.reason
+    committed = tracker.committed()
+    ids = sorted(committed)
+    write_poses(out / "poses.txt", poses)
+    if ids:
+        write_tum(out / TRAJECTORY_TUM, np.stack([committed[i] for i in ids]), timestamps=np.array(ids, np.float64))
+    else:
+        write_text(out / TRAJECTORY_TUM, "")
+    info = tracker.summary() | {"frames": n, "placed": len(ids), "revisions": revisions, "unplaced_frames": unplaced,
+                                "track_ms_per_frame": 1e3 * t_track / max(n, 1), "lost_reasons": reasons}
+    write_text(out / SLAM_JSON, json.dumps(info, indent=2) + "\n")
+    return info

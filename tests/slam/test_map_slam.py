@@ -36,6 +36,12 @@ def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_pat
     code, stdout, err = _cli(capsys, "map", seq_dir, tmp_path / "default", "--poses", "slam", "--quiet")
     assert code == 0, err
     assert "slam: 48 of 48 frames placed" in stdout
+    # the front end alone (no map) gives the same poses.txt
+    from panovocc_cli.slam.run import run_slam_poses
+
+    info = run_slam_poses(seq_dir, tmp_path / "poses_only")
+    assert info["placed"] == 48 and info["unplaced_frames"] == []
+    assert (tmp_path / "poses_only" / "poses.txt").read_bytes() == (tmp_path / "default" / "poses.txt").read_bytes()
     # the exactness check wants many revisions: optimise after every loop edge, revise every frame moved 1 mm
     out = tmp_path / "map"
     params = SlamParams(loop_optimise_m=0.0, loop_optimise_deg=0.0, revise_trans_m=0.001, revise_rot_deg=0.05)
