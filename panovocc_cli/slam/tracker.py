@@ -68,7 +68,8 @@ class SlamParams:
     min_fitness: float = 0.5        # inlier fraction below which tracking has failed
     max_step_m: float = 1.0         # largest correction of an initial guess accepted while tracking
     max_step_deg: float = 90.0      # (a panorama registers across large turns: a turn is a shift of columns)
-    zero_motion_init: bool = True   # also register from the previous pose (no motion); the better fit wins
+    zero_motion_init: bool = True   # also register from the previous pose (no motion); it wins when it fits
+    guess_margin: float = 0.05      # better than the prediction's by this much
     kf_trans_m: float = 0.4
     kf_rot_deg: float = 20.0
     kf_fitness: float = 0.85
@@ -265,15 +266,21 @@ class Tracker:
         return r
 
     def _best_fit(self, target: Cloud, source: Cloud, inits: list):
-        """Register from each initial guess (4, 4) ``T_target_source``; returns (result, its guess): the
-        accepted result (:meth:`_accept`) with the highest fitness (the first guess on a tie), else the
-        fittest one."""
+        """Register from each initial guess (4, 4) ``T_target_source`` in turn; returns (result, its guess).
+
+        A later guess replaces the current best only when the best is not accepted (:meth:`_accept`) and it
+        is, or when it fits better by ``guess_margin`` (the first guess, the prediction, keeps near-ties:
+        tested equal on the homes); once the best fits better than ``1 - guess_margin`` no later guess can
+        win, and none is tried."""
+        p = self.params
         best = None
         for init in inits:
+            if best is not None and best[0] and best[1].fitness > 1.0 - p.guess_margin:
+                break
             r = self._register(target, source, init)
-            key = (self._accept(r, init, self.params.min_fitness), r.fitness)
-            if best is None or key > best[0]:
-                best = (key, r, init)
+            ok = self._accept(r, init, p.min_fitness)
+            if best is None or (ok and not best[0]) or (ok == best[0] and r.fitness > best[1].fitness + p.guess_margin):
+                best = (ok, r, init)
         return best[1], best[2]
 
     def _accept(self, r, init: np.ndarray, min_fitness: float) -> bool:
