@@ -5,25 +5,36 @@ first placed frame's camera frame turned +Z up, :data:`LEVEL_FIRST`):
 
 1. **Tracking, frame to keyframe.** The frame's points (every ``stride``-th pixel, ranges within
    ``(min_range_m, max_range_m)``) are downsampled to ``voxel_m`` and registered to the current
-   keyframe (:mod:`.registration`: small_gicp's GICP or Open3D's point-to-plane ICP), starting from
-   a constant-velocity prediction. A result whose inlier fraction is below ``min_fitness`` or that
-   jumps more than ``max_step_m`` / ``max_step_deg`` from the prediction is a tracking failure.
-2. **Relocalisation.** After a failure the frame is registered to the ``reloc_candidates``
-   keyframes nearest the predicted position, from the prediction and from four headings about the
-   keyframe's vertical axis; the best result with fitness >= ``reloc_fitness`` places it. Otherwise
-   the frame is **lost** (not placed); a frame with fewer than ``min_points`` downsampled points
-   (few valid depths) is lost without trying.
+   keyframe (:mod:`.registration`: small_gicp's GICP or Open3D's point-to-plane ICP) from the
+   constant-velocity prediction and, unless that fits above ``1 - guess_margin``, from the previous
+   pose (no motion: hard turns and stops break the constant velocity); the no-motion result wins when
+   it fits better by ``guess_margin``. A result whose inlier fraction is below ``min_fitness`` or that
+   corrects its guess by more than ``max_step_m`` / ``max_step_deg`` is a tracking failure.
+2. **Relocalisation.** A failure, and a fit below ``kf_fitness``, relocalise: the frame is
+   registered to the ``reloc_candidates`` keyframes nearest the prediction, from the prediction and
+   from four headings about the keyframe's vertical axis (screened at ``reloc_voxel_m``; the
+   ``reloc_refine`` best distinct hypotheses refined within ``loop_max_corr_m``, which scores them).
+   The best is accepted only when it scores ``reloc_fitness`` and leads every distinct hypothesis
+   (``reloc_distinct_m`` / ``reloc_distinct_deg`` apart) by ``reloc_margin``; a poor tracking fit
+   competes and stands unless beaten by that margin. Otherwise the frame is **lost** (not placed):
+   look-alike places are refused, not guessed. A frame with fewer than ``min_points`` downsampled
+   points (few valid depths) is lost without trying.
 3. **Keyframes.** A frame becomes a keyframe when it is ``kf_trans_m`` or ``kf_rot_deg`` from its
    keyframe, when the fit drops below ``kf_fitness``, or after a relocalisation. Consecutive
-   keyframes are joined by an odometry edge (the registration, with Open3D's information matrix).
-4. **Loop closure.** A new keyframe is compared with older keyframes (at least ``loop_min_gap``
-   keyframes back) within ``loop_radius_m`` of it (place proximity, nearest first, at most
-   ``loop_candidates``); a candidate is verified by registration from the current estimate and
-   accepted at fitness >= ``loop_fitness`` (``loop_max_corr_m``). Accepted candidates become
-   uncertain edges.
+   keyframes are joined by an odometry edge (the registration, with Open3D's information matrix);
+   each keyframe keeps its path length along those edges.
+4. **Loop closure.** Two keyframes a path length L apart are uncertain relative to each other by
+   sigma = max(``odom_min_sigma_m``, ``odom_sigma_per_m`` L) (and likewise in degrees). A new keyframe is
+   compared with older keyframes (at least ``loop_min_gap`` keyframes back) within ``loop_radius_m``
+   plus ``loop_sigmas`` sigmas of it (nearest first, at most ``loop_candidates``); a candidate is
+   verified by registration from the current estimate and accepted at fitness >= ``loop_fitness``
+   (``loop_max_corr_m``) when its correction of the estimate lies within ``loop_sigmas`` sigmas.
+   Accepted candidates become uncertain edges.
 5. **Pose-graph optimisation** (Open3D's ``global_optimization``, Levenberg-Marquardt, line-process
-   pruning of wrong loop edges) runs after every accepted loop closure; keyframe poses move, and
-   every placed frame follows its keyframe (``T_world_frame = T_world_kf · T_kf_frame``).
+   pruning of wrong loop edges) runs when a new loop edge disagrees with the estimate by more than
+   ``loop_optimise_m`` / ``loop_optimise_deg`` (an agreeing edge waits in the graph for the next one);
+   keyframe poses move, and every placed frame follows its keyframe
+   (``T_world_frame = T_world_kf · T_kf_frame``).
 
 Every frame pose that an optimisation moves by more than ``revise_trans_m`` or ``revise_rot_deg``
 from the pose last handed out is returned in :attr:`TrackStep.revisions`: the caller sends it to
