@@ -90,7 +90,7 @@ class SlamParams:
     loop_min_gap: int = 6           # keyframes between a loop's two ends
     loop_candidates: int = 3
     loop_fitness: float = 0.6
-    loop_max_corr_m: float = 0.2
+    loop_max_corr_m: float = 0.1   # loop verification, edge information, relocalisation scores (0.2: ATE 12.5 -> 8.7 mm, house 0)
     odom_sigma_per_m: float = 0.02  # odometry drift (1 sigma) per metre travelled: translation, m / m,
     odom_sigma_deg_per_m: float = 0.5   # and rotation, degrees / m
     odom_min_sigma_m: float = 0.05  # floors of the relative uncertainty of two keyframes
