@@ -74,7 +74,7 @@ _BASELINE_REQ = ("panovocc_cli.baselines.run:BaselineConfig", "panovocc_cli.base
 # docs/baselines.md, whose measured schedule is this one): seeded drift, true poses arriving as corrections every K frames. With RPU the same
 # schedule ends exactly at the true-pose map (tested there), which is why the full model's row is PanOVOcc's.
 RPU_SCHEDULE = {"rot_deg": 0.5, "trans_m": 0.02, "every": 10}
-SLAM_REQ = ("panovocc_cli.slam.run:run_map_slam", "panovocc_cli.mapping.config:MapConfig.poses_align")
+SLAM_REQ = ("panovocc_cli.slam.run:run_slam_poses", "panovocc_cli.mapping.config:MapConfig.poses_align")
 # the upstream "drifting trajectory": odometry-style drift, never corrected (geometry/drift.py)
 DRIFT = {"trans_m_per_sqrt_frame": 0.005, "trans_m_per_m": 0.02, "rot_deg_per_frame": 0.2}
 

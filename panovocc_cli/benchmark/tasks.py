@@ -283,27 +283,21 @@ def _poses(p: dict, out: Path, deps: list[Path], cache: Path):
     """Poses other than the true ones, one per frame (``poses.txt``, NICE-SLAM form).
 
     ``source: drift``: the sequence's true poses with seeded odometry-style drift (geometry/drift.py).
-    ``source: slam``: the SLAM front end's trajectory (``map --poses slam``, slam/run.py); the map it builds
-    on the way is dropped: it lives in the first frame's world, so the benchmark maps again with these
-    poses aligned to the reference (``--poses-align se3``), the paper's protocol.
+    ``source: slam``: the SLAM front end's trajectory (``slam.run.run_slam_poses``: the ``poses.txt`` that
+    ``map --poses slam`` writes, without building that map); it lives in the first frame's world, so the
+    benchmark maps with these poses aligned to the reference (``--poses-align se3``), the paper's protocol.
     """
     from ..io.poses import read_poses, write_poses
 
     seq = deps[0] / "seq"
-    if p["source"] == "slam":
-        import dataclasses
+    if p["source"] == "slam":  # the front end alone (no map): the poses.txt map --poses slam writes, tested equal
+        from ..slam.run import run_slam_poses  # type: ignore[import-not-found]
 
-        from ..mapping.config import MapConfig
-        from ..slam.run import run_map_slam  # type: ignore[import-not-found]
-
-        s = run_map_slam(dataclasses.replace(MapConfig(seq=str(seq), out=str(out / "slam")), semantic=_no_semantics()),
-                         progress=False)
+        s = run_slam_poses(seq, out / "slam")
         shutil.copyfile(out / "slam" / "poses.txt", out / "poses.txt")
-        for name in ("slam.json",):
-            if (out / "slam" / name).is_file():
-                shutil.copyfile(out / "slam" / name, out / name)
+        shutil.copyfile(out / "slam" / "slam.json", out / "slam.json")
         shutil.rmtree(out / "slam")
-        keep = ("frames", "track_ms_per_frame", "unplaced_frames", "slam")
+        keep = ("frames", "placed", "unplaced_frames", "track_ms_per_frame")
         return ({"poses": "poses.txt"}, f"panovocc map {_rel(seq, cache)} {_rel(out / 'slam', cache)} --poses slam "
                 "--segmenter none", {k: v for k, v in _plain(s).items() if k in keep})
     from ..geometry.drift import drift_trajectory  # type: ignore[import-not-found]
@@ -315,12 +309,6 @@ def _poses(p: dict, out: Path, deps: list[Path], cache: Path):
     return ({"poses": "poses.txt"}, f"panovocc traj perturb {_rel(seq / 'poses.txt', cache)} "
             f"{_rel(out / 'poses.txt', cache)} --drift {p['trans_m_per_sqrt_frame']:g} --drift-per-m "
             f"{p['trans_m_per_m']:g} --rot-drift-deg {p['rot_deg_per_frame']:g} --seed {p['seed']}", {})
-
-
-def _no_semantics():
-    from ..mapping.config import SemanticParams
-
-    return SemanticParams(segmenter="none")
 
 
 def _map(p: dict, out: Path, deps: list[Path], cache: Path):
