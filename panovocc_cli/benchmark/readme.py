@@ -40,7 +40,9 @@ def readme_block(root: Path, folder: str) -> str:
             raise PanovoccError("not found: run make reproduce-tables first (or name another results folder)", path)
         parts.append(table_text(path.read_text()))
     if (d / FIGURE).is_file():
-        parts.append(f"![coverage, panoramic vs perspective]({folder}/{FIGURE})")
+        parts.append(f"![coverage, panoramic vs perspective]({folder}/{FIGURE})\n\nCoverage of the ground truth's "
+                     "occupied voxels along the trajectory of pan-replica-synth's first scene: all panoramas seen so "
+                     "far against the same frames' forward 90° views (every scene: the coverage table).")
     parts.append(f"Per-scene cells, the coverage table and the provenance of every row: `{folder}/`.")
     return "\n\n".join(parts) + "\n"
 
