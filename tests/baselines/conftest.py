@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -11,16 +10,9 @@ import pytest
 @pytest.fixture()
 def cli(capsys):
     """``cli(argv) -> (exit code, stdout, stderr)`` of ``panovocc ARGV`` run in this process."""
-    from panovocc_cli.cli import main
+    from cli_helpers import run_cli
 
-    def run(argv):
-        capsys.readouterr()
-        with pytest.raises(SystemExit) as e:
-            main([os.fspath(a) if isinstance(a, Path) else str(a) for a in argv])
-        cap = capsys.readouterr()
-        return int(e.value.code or 0), cap.out, cap.err
-
-    return run
+    return lambda argv: run_cli(capsys, argv)
 
 
 @pytest.fixture(scope="module")

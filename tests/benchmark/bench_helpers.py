@@ -1,14 +1,11 @@
-"""Helpers of the benchmark tests: the tiny in-process sweep, byte snapshots, the CLI in process.
+"""Helpers of the benchmark tests: the tiny in-process sweep, byte snapshots (the CLI in process: tests/cli_helpers.run_cli).
 
 Scale ``tiny`` (one one-room scene, 6 frames at 128x64), two map methods and one baseline entry.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-
-import pytest
 
 TINY_METHODS = "panovocc,wo-gsc,persp-tsdf"
 
@@ -26,14 +23,3 @@ def reproduce(out: Path, cache: Path, client=None, **kw):
 def tree_bytes(folder: Path) -> dict[str, bytes]:
     """Every file under ``folder`` (relative path -> bytes)."""
     return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def run_cli(capsys, argv) -> tuple[int, str, str]:
-    """``panovocc ARGV`` in this process: (exit code, stdout, stderr)."""
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([os.fspath(a) if isinstance(a, Path) else str(a) for a in argv])
-    cap = capsys.readouterr()
-    return int(e.value.code or 0), cap.out, cap.err

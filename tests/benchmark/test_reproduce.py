@@ -53,7 +53,7 @@ def test_rerun_is_cached_and_byte_identical(tiny_sweep):
 
 
 def test_out_refuses_foreign_folder_and_needs_overwrite(tiny_sweep, tmp_path, capsys):
-    from bench_helpers import run_cli
+    from cli_helpers import run_cli
 
     out, cache, _ = tiny_sweep
     foreign = tmp_path / "mine"

@@ -4,6 +4,7 @@ import copy
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.evaluation.trajectory import (align_trajectory, error_stats, evaluate_trajectory, rotation_angle,
@@ -111,32 +112,22 @@ def test_tum_and_nice_slam_read_with_timestamps(tmp_path):
         frame_poses(tmp_path / "short.txt", 12)
 
 
-def _cli(capsys, *argv):
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    out = capsys.readouterr()
-    return int(e.value.code or 0), out.out, out.err
-
-
 def test_traj_perturb_then_eval_command_line(tmp_path, capsys):
     T = _helix(50)
     write_poses(tmp_path / "gt.txt", T)
-    code, out, err = _cli(capsys, "traj", "perturb", tmp_path / "gt.txt", tmp_path / "est.tum", "--drift", "0.01",
-                          "--rot-drift-deg", "0.2", "--seed", "4")
+    code, out, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "est.tum", "--drift", "0.01",
+                          "--rot-drift-deg", "0.2", "--seed", "4"])
     assert code == 0, err
     first = (tmp_path / "est.tum").read_bytes()
-    code, _, _ = _cli(capsys, "traj", "perturb", tmp_path / "gt.txt", tmp_path / "est.tum", "--drift", "0.01",
-                      "--rot-drift-deg", "0.2", "--seed", "4", "--overwrite")
+    code, _, _ = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "est.tum", "--drift", "0.01",
+                      "--rot-drift-deg", "0.2", "--seed", "4", "--overwrite"])
     assert code == 0 and (tmp_path / "est.tum").read_bytes() == first  # seeded: same bytes
     assert (tmp_path / "est.config.json").is_file()
     _, D, form = read_trajectory(tmp_path / "est.tum")
     assert form == "tum" and np.allclose(D, drift_trajectory(T, trans_m_per_sqrt_frame=0.01, rot_deg_per_frame=0.2,
                                                               seed=4), atol=1e-9)
-    code, out, err = _cli(capsys, "traj", "eval", tmp_path / "est.tum", tmp_path / "gt.txt", "--plot",
-                          tmp_path / "top.png", "--json", tmp_path / "r.json")
+    code, out, err = run_cli(capsys, ["traj", "eval", tmp_path / "est.tum", tmp_path / "gt.txt", "--plot",
+                          tmp_path / "top.png", "--json", tmp_path / "r.json"])
     assert code == 0, err
     import json
 

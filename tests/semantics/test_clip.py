@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_helpers import run_cli  # noqa: E402
 from clip_helpers import register_tiny_config, tiny_model, write_tiny_clip  # noqa: E402
 from semantics_helpers import write_labelled_room  # noqa: E402
 
@@ -28,19 +29,6 @@ except PanovoccError as e:  # pragma: no cover
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     return write_tiny_clip(tmp_path_factory.mktemp("tinyclip") / "model", seed=0)
-
-
-def run_cli(capsys, argv):
-    """``panovocc ARGV`` in this process: (exit code, stdout, stderr)."""
-    import os
-
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([os.fspath(a) for a in argv])
-    cap = capsys.readouterr()
-    return int(e.value.code or 0), cap.out, cap.err
 
 
 def _rgb(h=64, seed=0):

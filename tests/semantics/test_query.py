@@ -5,7 +5,6 @@ at known boxes) with the exact simulated segmenter, then ask it with the package
 """
 
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from cli_helpers import run_cli  # noqa: E402
 from semantics_helpers import BOXES, write_labelled_room  # noqa: E402
 
 from panovocc_cli.errors import PanovoccError  # noqa: E402
@@ -28,16 +28,6 @@ def fake_encoder(table):
         v = np.array([table[t] for t in texts], np.float64)
         return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
     return enc
-
-
-def run_cli(capsys, argv):
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([os.fspath(a) for a in argv])
-    cap = capsys.readouterr()
-    return int(e.value.code or 0), cap.out, cap.err
 
 
 # --- pure parts -----------------------------------------------------------------------------------

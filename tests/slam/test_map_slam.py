@@ -5,21 +5,11 @@ import json
 import shutil
 
 import numpy as np
-import pytest
+from cli_helpers import run_cli
 
 from panovocc_cli.evaluation.trajectory import evaluate_trajectory
 from panovocc_cli.io.poses import read_poses, read_trajectory, write_tum
 from panovocc_cli.io.sequence import Sequence
-
-
-def _cli(capsys, *argv):
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    out = capsys.readouterr()
-    return int(e.value.code or 0), out.out, out.err
 
 
 def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_path, capsys):
@@ -33,7 +23,7 @@ def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_pat
     seq_dir = tmp_path / "seq"
     shutil.copytree(loop_seq, seq_dir)
     (seq_dir / "poses.txt").unlink()  # --poses slam never reads them
-    code, stdout, err = _cli(capsys, "map", seq_dir, tmp_path / "default", "--poses", "slam", "--quiet")
+    code, stdout, err = run_cli(capsys, ["map", seq_dir, tmp_path / "default", "--poses", "slam", "--quiet"])
     assert code == 0, err
     assert "slam: 48 of 48 frames placed" in stdout
     # the front end alone (no map) gives the same poses.txt
