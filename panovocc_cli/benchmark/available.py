@@ -3,7 +3,8 @@
 A requirement is a string ``module``, ``module:attr`` or ``module:Class.field`` (a dataclass field, e.g.
 ``panovocc_cli.datasets.synth:SynthConfig.house``). A method or split whose requirements do not all
 import is reported as "not available in this build" with the first missing one named; nothing is run
-for it and no number is made up.
+for it and no number is made up. :func:`select_named` picks entries of such a registry (methods, splits)
+by name.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 import dataclasses
 import importlib
 from typing import Iterable
+
+from ..errors import PanovoccError
 
 
 def missing(requires: Iterable[str]) -> list[str]:
@@ -41,3 +44,16 @@ def unavailable_reason(requires: Iterable[str]) -> str | None:
     """``None`` when every requirement imports, else ``"not available in this build (needs X)"``."""
     lack = missing(requires)
     return None if not lack else f"not available in this build (needs {', '.join(lack)})"
+
+
+def select_named(registry: dict, spec: str, what: str) -> list:
+    """The entries of ``registry`` (name -> entry) named by the comma list ``spec`` (``all`` or empty: every
+    entry), in registry order; an unknown name is a :class:`PanovoccError` naming it and the choices
+    (``what``: the kind of entry, e.g. ``method``)."""
+    names = [n.strip() for n in spec.split(",") if n.strip()]
+    if not names or names == ["all"]:
+        return list(registry.values())
+    bad = [n for n in names if n not in registry]
+    if bad:
+        raise PanovoccError(f"unknown {what} {bad[0]!r}: expected all or a comma list of {', '.join(registry)}")
+    return [v for k, v in registry.items() if k in names]

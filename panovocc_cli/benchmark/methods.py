@@ -19,8 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..errors import PanovoccError
-from .available import unavailable_reason
+from .available import select_named, unavailable_reason
 
 GROUPS = ("main", "ablation", "upstream")
 POSE_SOURCES = ("default", "true", "slam", "drift")
@@ -123,13 +122,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
 
 def select_methods(spec: str) -> list[Method]:
     """Methods named by a comma list (``all`` = every method), in registry order."""
-    names = [n.strip() for n in spec.split(",") if n.strip()]
-    if not names or names == ["all"]:
-        return list(METHODS.values())
-    bad = [n for n in names if n not in METHODS]
-    if bad:
-        raise PanovoccError(f"unknown method {bad[0]!r}: expected all or a comma list of {', '.join(METHODS)}")
-    return [m for m in METHODS.values() if m.name in names]
+    return select_named(METHODS, spec, "method")
 
 
 def map_cli_flags(opts: dict) -> list[str]:

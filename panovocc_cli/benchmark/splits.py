@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import PanovoccError
-from .available import unavailable_reason
+from .available import select_named, unavailable_reason
 
 SCALES = ("full", "small", "tiny")
 
@@ -124,10 +124,4 @@ def check_scale(scale: str) -> str:
 
 def select_splits(spec: str) -> list[Split]:
     """Splits named by a comma list (``all`` = every split), in registry order."""
-    names = [n.strip() for n in spec.split(",") if n.strip()]
-    if not names or names == ["all"]:
-        return list(SPLITS.values())
-    bad = [n for n in names if n not in SPLITS]
-    if bad:
-        raise PanovoccError(f"unknown split {bad[0]!r}: expected all or a comma list of {', '.join(SPLITS)}")
-    return [s for s in SPLITS.values() if s.name in names]
+    return select_named(SPLITS, spec, "split")
