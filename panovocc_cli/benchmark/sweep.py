@@ -98,24 +98,27 @@ def build_sweep(splits: list[Split], methods: list[Method], scale: str) -> Sweep
     return sw
 
 
+def _poses_task(source: str, split: Split, sc: SceneSpec, render: Task, code: str) -> Task:
+    """The ``poses`` task of scene ``sc``: ``slam`` (the front end's trajectory) or ``drift`` (seeded drift);
+    every method of the scene that uses those poses depends on this one task."""
+    params = {"source": "slam"} if source == "slam" else {"source": "drift", **DRIFT,
+                                                           "seed": sc.seed + DRIFT_SEED_OFFSET}
+    return Task("poses", params, (render,), _label("poses", split, sc, source), code)
+
+
 def _prediction(m: Method, split: Split, sc: SceneSpec, render: Task, code: str) -> Task | None:
     """The task that makes method ``m``'s prediction on scene ``sc``."""
     if m.runner == "baseline":  # on the split's poses, as PanOVOcc's row (SLAM: the same aligned trajectory)
+        params = {"name": m.options["name"], "seed": sc.seed}
+        deps: tuple[Task, ...] = (render,)
         if split.poses == "slam":
-            slam = Task("poses", {"source": "slam"}, (render,), _label("poses", split, sc, "slam"), code)
-            return Task("baseline", {"name": m.options["name"], "seed": sc.seed, "poses": "slam"}, (render, slam),
-                        _label("baseline", split, sc, m.name), code)
-        return Task("baseline", {"name": m.options["name"], "seed": sc.seed}, (render,),
-                    _label("baseline", split, sc, m.name), code)
+            params["poses"] = "slam"
+            deps = (render, _poses_task("slam", split, sc, render, code))
+        return Task("baseline", params, deps, _label("baseline", split, sc, m.name), code)
     opts = m.map_options()
     poses = split.poses if opts["poses"] == "default" else opts["poses"]
     opts = {**opts, "poses": poses}
-    deps: tuple[Task, ...] = (render,)
-    if poses == "drift":
-        deps = (render, Task("poses", {"source": "drift", **DRIFT, "seed": sc.seed + DRIFT_SEED_OFFSET}, (render,),
-                             _label("poses", split, sc, "drift"), code))
-    elif poses == "slam":
-        deps = (render, Task("poses", {"source": "slam"}, (render,), _label("poses", split, sc, "slam"), code))
+    deps = (render, _poses_task(poses, split, sc, render, code)) if poses in ("drift", "slam") else (render,)
     params = {"options": opts, "seed": sc.seed}
     if not opts["rpu"]:
         params["schedule"] = {**RPU_SCHEDULE, "seed": sc.seed + DRIFT_SEED_OFFSET}
