@@ -129,13 +129,14 @@ def run_baseline(cfg: BaselineConfig) -> dict:
     if cfg.gt is not None and cfg.name != "single-pano":
         raise PanovoccError(f"--gt scores single-pano's frames in their own boxes; score {cfg.name} with "
                             f"panovocc eval {cfg.out}/prediction.npz GT.npz")
-    seq = Sequence(cfg.seq, cfg.poses)
+    aligned = None
     if cfg.poses_align != "none":  # the map's reading of --poses with --poses-align (Umeyama to SEQ/poses.txt)
         from ..mapping.config import MapConfig
         from ..mapping.pipeline import run_poses
 
-        seq = Sequence(cfg.seq, cfg.poses, run_poses(MapConfig(seq=str(cfg.seq), out=str(cfg.out), poses=(
-            None if cfg.poses is None else str(cfg.poses)), poses_align=cfg.poses_align)))
+        aligned = run_poses(MapConfig(seq=str(cfg.seq), out=str(cfg.out), poses=(
+            None if cfg.poses is None else str(cfg.poses)), poses_align=cfg.poses_align))
+    seq = Sequence(cfg.seq, cfg.poses, aligned)
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera is {seq.meta.camera!r}; the baselines read panoramic (erp) sequences",
                             Path(cfg.seq) / "meta.json")
