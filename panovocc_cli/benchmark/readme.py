@@ -14,7 +14,7 @@ import re
 import sys
 from pathlib import Path
 
-from ..errors import PanovoccError
+from ..errors import EXIT_BAD_INPUT, PanovoccError
 
 BEGIN = re.compile(r"<!-- BENCHMARK-TABLES (\S+) -->\n")
 END = "<!-- /BENCHMARK-TABLES -->"
@@ -55,9 +55,15 @@ def _span(text: str, where) -> tuple[re.Match, int]:
     return m, end
 
 
+def _read(readme: Path) -> str:
+    if not readme.is_file():
+        raise PanovoccError("not found (expected the README with a BENCHMARK-TABLES block)", readme)
+    return readme.read_text()
+
+
 def current_block(readme: Path) -> tuple[str, str]:
     """``(folder, content)`` of the README's block as it stands."""
-    text = readme.read_text()
+    text = _read(readme)
     m, end = _span(text, readme)
     return m.group(1), text[m.end():end]
 
@@ -66,7 +72,7 @@ def update_readme(readme: Path) -> bool:
     """Rewrite the README's block from its results folder; True when it changed."""
     from ..io.atomic import write_text
 
-    text = readme.read_text()
+    text = _read(readme)
     m, end = _span(text, readme)
     new = text[:m.end()] + readme_block(readme.parent, m.group(1)) + text[end:]
     if new == text:
@@ -78,6 +84,7 @@ def update_readme(readme: Path) -> bool:
 if __name__ == "__main__":  # python -m panovocc_cli.benchmark.readme README.md
     try:
         changed = update_readme(Path(sys.argv[1] if len(sys.argv) > 1 else "README.md"))
-    except PanovoccError as e:
-        sys.exit(f"error: {e}")
+    except PanovoccError as e:  # one line, exit status 2, as every panovocc command
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
     print("README updated" if changed else "README already up to date")

@@ -37,3 +37,16 @@ def test_update_readme_rewrites_only_the_block(tmp_path):
     (res / "ablation.md").unlink()
     with pytest.raises(PanovoccError, match="ablation.md"):
         update_readme(readme)
+
+
+@pytest.mark.parametrize("name", ["missing.md", "no_block.md"])
+def test_bad_readme_is_one_line_and_exit_2(tmp_path, name):
+    import subprocess
+    import sys
+
+    (tmp_path / "no_block.md").write_text("# a README without the block\n")
+    r = subprocess.run([sys.executable, "-m", "panovocc_cli.benchmark.readme", str(tmp_path / name)],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith("error: ") and name in r.stderr
+    assert (tmp_path / "no_block.md").read_text() == "# a README without the block\n"  # nothing written
