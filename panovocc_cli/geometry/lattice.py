@@ -1,11 +1,16 @@
 """The global voxel lattice: voxel n covers [n h, (n + 1) h) on each axis (CONVENTIONS.md).
 
 Every grid and the mapper share it, so two grids of the same voxel size compare voxel by voxel.
-Keys pack a voxel index (i, j, k) into one int64 (21 bits a signed axis), for hashing and sorting.
+Keys pack a voxel index (i, j, k) into one int64 (21 bits a signed axis), for hashing and sorting. This
+module is the one definition of that layout: numpy code calls :func:`pack_keys` / :func:`unpack_keys`,
+numba kernels the inlined :func:`pack_key` / :func:`unpack_key` and :data:`KEY_SHIFT_I` ... constants.
+A map keys its voxels relative to its own origin (``geometry.lattice.LocalOrigin``, ``config.json``), so
+the range below is a range around the map's origin, not around the world's.
 """
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from ..config import LATTICE_TOL
@@ -15,6 +20,23 @@ _BITS = 21
 _OFFSET = 1 << (_BITS - 1)
 _MASK = (1 << _BITS) - 1
 KEY_RANGE = _OFFSET  # |index| must stay below this (about 84 km at 8 cm)
+KEY_BITS = _BITS
+KEY_OFFSET = _OFFSET
+KEY_MASK = _MASK
+KEY_SHIFT_I = 2 * _BITS  # bit position of the i axis (j at KEY_BITS, k at 0)
+
+
+@nb.njit(cache=True, inline="always")
+def pack_key(i, j, k):
+    """One voxel index -> its key (numba; the caller keeps |index| < KEY_RANGE)."""
+    return ((i + KEY_OFFSET) << KEY_SHIFT_I) | ((j + KEY_OFFSET) << KEY_BITS) | (k + KEY_OFFSET)
+
+
+@nb.njit(cache=True, inline="always")
+def unpack_key(key):
+    """One key -> its voxel index (i, j, k) (numba)."""
+    return (((key >> KEY_SHIFT_I) & KEY_MASK) - KEY_OFFSET, ((key >> KEY_BITS) & KEY_MASK) - KEY_OFFSET,
+            (key & KEY_MASK) - KEY_OFFSET)
 
 
 def point_to_index(points, voxel_size: float) -> np.ndarray:

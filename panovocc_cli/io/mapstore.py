@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,22 @@ DELTAS_DIR = "deltas"
 STAGED_SUFFIX = ".new"  # a revised delta waiting for the memory file that commits it
 DELTA_COMPRESSLEVEL = 1  # zlib level of delta files (docs/mapping.md, "Delta store size")
 MEMORY_COMPRESSLEVEL = 1  # zlib level of memory.npz (channels stored as for deltas: compact, sparse rows)
+
+
+class SparseRows(NamedTuple):
+    """A channel given by its possibly non-zero rows: ``values`` (m, width) at row positions ``rows`` (m,)
+    int64 ascending of an (n, width) array that is zero elsewhere. Encoded to the same bytes as the dense
+    array (:func:`_encode_channels`); what a memory with sparse semantic rows saves and loads, so neither
+    makes the (n, width) array."""
+
+    rows: np.ndarray
+    values: np.ndarray
+    n: int
+
+    def dense(self) -> np.ndarray:
+        out = np.zeros((self.n, self.values.shape[1]), np.int64)
+        out[self.rows] = self.values
+        return out
 
 
 def delta_path(folder: str | Path, frame_id: int) -> Path:
@@ -85,6 +101,14 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
     is zero on most rows is stored as its non-zero rows and their row indices as differences
     ``{prefix}rows_NAME``: zlib no longer spends its time on zeros."""
     for name, arr in channels.items():
+        if isinstance(arr, SparseRows):
+            nz = np.asarray(arr.values).any(axis=1)
+            rows, vals = np.asarray(arr.rows, np.int64)[nz], np.asarray(arr.values)[nz]
+            if 2 * len(rows) < n:
+                _shuffled(arrays, f"{prefix}ch_{name}", _compact(vals))
+                arrays[f"{prefix}rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
+                continue
+            arr = SparseRows(rows, vals, n).dense()
         arr = np.asarray(arr)
         arr = arr.reshape(n, arr.shape[-1] if arr.ndim == 2 else -1) if n == 0 else arr.reshape(n, -1)
         rows = np.flatnonzero(arr.any(axis=1)) if n else np.zeros(0, np.int64)
@@ -95,8 +119,9 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
             _shuffled(arrays, f"{prefix}ch_{name}", _compact(arr))
 
 
-def _decode_channels(z, prefix: str, n: int) -> dict:
-    """Inverse of :func:`_encode_channels`: dict name -> (n, width) int64."""
+def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
+    """Inverse of :func:`_encode_channels`: dict name -> (n, width) int64 (``sparse``: a channel stored as
+    rows stays a :class:`SparseRows`)."""
     ch = {}
     head = f"{prefix}ch_"
     files = set(z.files if hasattr(z, "files") else z)
@@ -107,6 +132,9 @@ def _decode_channels(z, prefix: str, n: int) -> dict:
         vals = _unshuffled(z, files, k)
         if f"{prefix}rows_{name}" in files:  # sparse rows
             rows = np.cumsum(np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64))
+            if sparse:
+                ch[name] = SparseRows(rows, vals.reshape(len(rows), vals.shape[1] if vals.ndim == 2 else 1), n)
+                continue
             full = np.zeros((n, vals.shape[1] if vals.ndim == 2 else 1), np.int64)
             full[rows] = vals.reshape(len(rows), full.shape[1])
             ch[name] = full
@@ -184,8 +212,9 @@ def write_memory(folder: str | Path, arrays: Mapping[str, np.ndarray], frames_do
     write_npz(Path(folder) / MEMORY_NAME, out, compresslevel=MEMORY_COMPRESSLEVEL)
 
 
-def read_memory(folder: str | Path) -> tuple[dict, int, np.ndarray, np.ndarray | None]:
-    """Read ``folder/memory.npz``: (memory arrays, frames_done, poses (n, 4, 4) float64, frame_ids or None)."""
+def read_memory(folder: str | Path, sparse: bool = False) -> tuple[dict, int, np.ndarray, np.ndarray | None]:
+    """Read ``folder/memory.npz``: (memory arrays, frames_done, poses (n, 4, 4) float64, frame_ids or None);
+    ``sparse``: channels stored as rows come as :class:`SparseRows`."""
     path = Path(folder) / MEMORY_NAME
     if not path.is_file():
         raise PanovoccError("memory.npz not found (not a panovocc map folder, or the run stopped before "
@@ -197,7 +226,7 @@ def read_memory(folder: str | Path) -> tuple[dict, int, np.ndarray, np.ndarray |
             if int(arrays.pop("keys_are_diffs", 0)):  # older memory files store the keys themselves
                 keys = np.cumsum(keys)
             arrays["keys"] = keys
-            arrays.update({f"ch_{k}": v for k, v in _decode_channels(z, "", len(keys)).items()})
+            arrays.update({f"ch_{k}": v for k, v in _decode_channels(z, "", len(keys), sparse).items()})
         frames_done = int(arrays.pop("frames_done"))
         poses = np.asarray(arrays.pop("poses"), np.float64)
         ids = arrays.pop("frame_ids", None)

@@ -67,19 +67,45 @@ def memory_to_grid(keys: np.ndarray, channels: dict, voxel_size: float, p: Occup
     grid : Grid, labels 254 occupied / 0 free / 255 unobserved
     occupied_keys : (m,) int64 keys of the occupied voxels (sorted)
     """
-    occ, free, _ = classify(channels["A"], channels["N"], channels["F"], channels["O"], p)
-    keep = occ | free
-    idx = unpack_keys(keys[keep])
-    if len(idx) == 0:
+    grid, occ_keys, _, _ = _grid_of(keys, channels, voxel_size, p, class_names)
+    return grid, occ_keys
+
+
+CHUNK = 1 << 18  # voxels per slice of the export's per-voxel work (bounds its temporaries)
+
+
+def _slices(n: int):
+    return (slice(a, min(a + CHUNK, n)) for a in range(0, n, CHUNK))
+
+
+def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
+    """:func:`memory_to_grid`'s grid and occupied keys, and the occupied mask and score g (n,) of every
+    voxel: per-voxel work in slices of :data:`CHUNK` voxels, so the export's temporaries stay a few
+    megabytes whatever the map's size (the masks and g are the same as one :func:`classify` call's)."""
+    n = len(keys)
+    occ = np.zeros(n, np.bool_)
+    free = np.zeros(n, np.bool_)
+    g = np.zeros(n, np.float64)
+    A, N, F, O = (channels[c] for c in ("A", "N", "F", "O"))
+    for sl in _slices(n):
+        occ[sl], free[sl], g[sl] = classify(A[sl], N[sl], F[sl], O[sl], p)
+    kept = keys[occ | free]
+    state = np.where(occ[occ | free], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
+    if len(kept) == 0:
         labels = np.full((1, 1, 1), UNKNOWN, np.uint8)
-        return Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)), keys[:0]
-    i0 = idx.min(axis=0)
-    shape = idx.max(axis=0) - i0 + 1
-    labels = np.full(tuple(shape), UNKNOWN, np.uint8)
-    local = idx - i0
-    labels[tuple(local.T)] = np.where(occ[keep], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
+        return (Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)),
+                keys[:0], occ, g)
+    i0 = np.full(3, np.iinfo(np.int64).max, np.int64)
+    i1 = np.full(3, np.iinfo(np.int64).min, np.int64)
+    for sl in _slices(len(kept)):
+        idx = unpack_keys(kept[sl])
+        i0, i1 = np.minimum(i0, idx.min(axis=0)), np.maximum(i1, idx.max(axis=0))
+    labels = np.full(tuple(i1 - i0 + 1), UNKNOWN, np.uint8)
+    for sl in _slices(len(kept)):
+        local = unpack_keys(kept[sl]) - i0
+        labels[local[:, 0], local[:, 1], local[:, 2]] = state[sl]
     grid = Grid(labels, index_to_center(i0, voxel_size), voxel_size, list(class_names))
-    return grid, keys[occ]
+    return grid, keys[occ], occ, g
 
 
 def height_colors(z: np.ndarray) -> np.ndarray:
@@ -143,12 +169,12 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     """
     from .semantic import apply_labels, label_occupied
 
-    grid, occ_keys = memory_to_grid(keys, channels, voxel_size, occupancy)
-    pos = np.searchsorted(keys, occ_keys)
-    sub = {k: v[pos] for k, v in channels.items()}
+    grid, occ_keys, occ, g = _grid_of(keys, channels, voxel_size, occupancy)
+    pos = np.flatnonzero(occ)
+    # a memory's channels are read at the occupied voxels only (not copied for every voxel first)
+    sub = channels.at(pos) if hasattr(channels, "at") else {k: v[pos] for k, v in channels.items()}
     labels = None
     if len(vocab) and "E" in channels:
-        _, _, g = classify(channels["A"], channels["N"], channels["F"], channels["O"], occupancy)
         labels = label_occupied(occ_keys, {k: sub[k] for k in ("E", "S", "rgb_sum", "normal_sum", "count")},
                                 g[pos], semantic)
         grid = apply_labels(grid, occ_keys, labels, vocab)

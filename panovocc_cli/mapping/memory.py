@@ -10,14 +10,28 @@ quantities as ``round(value * FIXED_SCALE)`` int64 (fixed point, 2^-16 resolutio
 hold exact counts. Geometry uses A (fixed), N, F, O (int); the semantic stage adds its own channels
 (E, S, rgb_sum, normal_sum, count) through the same mechanism.
 
-Storage: a block key (the voxel index divided by 8, packed like a voxel key) maps to a block slot
-through an open-addressing hash table compiled with numba; each slot holds a dense (512, C) int64
-array of all channels side by side. Saved memories list only the non-zero voxels in key order, so two
-memories with equal sums have equal bytes whatever their history.
+Storage (docs/mapping.md, "Memory layout"): a block key (the voxel index divided by 8, packed like a
+voxel key) maps to a block slot through an open-addressing hash table compiled with numba.
+
+* The geometry channels (A N F O, the *dense* group) are kept for every voxel of an allocated block, in
+  the smallest type their values need: int32 (16 bytes a voxel), widened to int64 for the whole group
+  the first time a sum would leave int32 (a value is never wrapped: past int64 an add is refused).
+* Every other channel (the semantic ones, the *sparse* group) is kept only for voxels where such
+  evidence fell: a block that has some points to a page of 512 row numbers, and a voxel with evidence
+  owns one row of the sparse group (int32, widened to int64 like the geometry). Free-space voxels pay
+  nothing for the vocabulary.
+* Growth without a copy: block, page and row storage is reserved as untouched zero pages (Linux:
+  anonymous mappings with MAP_NORESERVE) large enough for a building; pages cost memory once written.
+  Past the reservation (or where it cannot be made) the storage doubles by copying.
+
+Saved memories list only the non-zero voxels in key order, so two memories with equal sums have equal
+bytes whatever their history or storage types.
 """
 
 from __future__ import annotations
 
+import mmap
+import sys
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -25,12 +39,18 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
+from ..geometry.lattice import KEY_BITS, KEY_MASK, KEY_OFFSET, KEY_SHIFT_I
 
 FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored / FIXED_SCALE
 BLOCK = 8  # voxels per block edge
 BLOCK_VOXELS = BLOCK ** 3
-_EMPTY = np.int64(-1)
-INITIAL_BYTES = 256 * 2 ** 20  # initial block storage of a memory (zeros: pages cost only once written; grows by doubling)
+GEOMETRY_NAMES = ("A", "N", "F", "O")  # the dense group: kept for every voxel of a block
+RESERVE_BLOCKS = 1 << 20  # blocks (512 M voxels) reserved up front where untouched pages cost nothing
+RESERVE_ROWS = 1 << 26  # sparse-group rows reserved likewise
+FALLBACK_BLOCKS = 1 << 10  # initial blocks where nothing can be reserved (then doubled by copying)
+_MAP_NORESERVE = 0x4000  # Linux mmap flag: no swap reservation for the mapping (mmap lacks the name)
+_I32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
+_I64 = (int(np.iinfo(np.int64).min), int(np.iinfo(np.int64).max))
 
 
 @dataclass(frozen=True)
@@ -105,7 +125,7 @@ class FrameDelta:
 
     Kept apart, not merged over the union of their keys: the semantic channels (E is C wide) touch only
     the voxels pixels fell in, a tenth of the geometry's free-space rows, so a merged delta would be
-    mostly zeros to allocate, add, scan and compress (:func:`merge_deltas` gives that single Delta).
+    mostly zeros to allocate, add, scan and compress.
     """
 
     parts: tuple
@@ -128,34 +148,34 @@ def _check_disjoint(parts: Sequence[Delta]) -> None:
         raise ValueError(f"channel {dup} produced by two contributors")
 
 
-def merge_deltas(parts: Sequence[Delta]) -> Delta:
-    """Combine contributors' deltas (disjoint channel names) into one over the union of their keys."""
-    parts = [p for p in parts if p is not None]
-    if not parts:
-        return Delta(np.zeros(0, np.int64), {})
-    if len(parts) == 1:
-        return parts[0]
-    keys = np.concatenate([p.keys for p in parts])
-    keys.sort(kind="stable")  # each part's keys are sorted: a linear merge of runs (np.unique hashes, ~20x slower)
-    if len(keys) > 1:
-        keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))]
-    _check_disjoint(parts)
-    # every channel a column slice of one (n, total width) matrix: VoxelMemory.add takes it without a copy
-    full = np.zeros((len(keys), sum(a.shape[1] for p in parts for a in p.channels.values())), np.int64)
-    out = {}
-    c0 = 0
-    for p in parts:
-        pos = np.searchsorted(keys, p.keys)
-        for name, arr in p.channels.items():
-            block = full[:, c0:c0 + arr.shape[1]]
-            block[pos] = arr
-            out[name] = block
-            c0 += arr.shape[1]
-    return Delta(keys, out)
+# ---------------------------------------------------------------------------------------------
+# storage
+
+
+def _reserve(n: int, tail: tuple, dtype) -> np.ndarray:
+    """Zeros of shape ``(n, *tail)``: on Linux an anonymous MAP_NORESERVE mapping, whose pages cost memory
+    only once written; elsewhere (or if the mapping is refused) ordinary zeros."""
+    dtype = np.dtype(dtype)
+    nbytes = int(n) * int(np.prod(tail, dtype=np.int64)) * dtype.itemsize
+    if nbytes > 0 and sys.platform.startswith("linux"):
+        try:
+            mm = mmap.mmap(-1, nbytes, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS | _MAP_NORESERVE,
+                           prot=mmap.PROT_READ | mmap.PROT_WRITE)
+            return np.frombuffer(mm, dtype).reshape((int(n),) + tuple(tail))
+        except (OSError, ValueError, OverflowError):
+            pass
+    return np.zeros((int(n),) + tuple(tail), dtype)
+
+
+def _grown(a: np.ndarray, used: int, cap: int, dtype=None) -> np.ndarray:
+    """A copy of ``a[:used]`` in new storage of ``cap`` rows (and type ``dtype``, default ``a``'s)."""
+    out = _reserve(cap, a.shape[1:], a.dtype if dtype is None else dtype)
+    out[:used] = a[:used]
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
-# numba kernels: block hash table and scatter-add
+# numba kernels: block hash table, scatter-add, gathers
 
 
 @nb.njit(cache=True)
@@ -170,7 +190,7 @@ def _hash64(k):
 
 @nb.njit(cache=True)
 def _lookup_insert(table_keys, table_slots, bkey, next_slot):
-    """Return (slot, inserted); -1 slot when the table has no room left for a new block."""
+    """Return (slot, inserted)."""
     mask = np.uint64(table_keys.shape[0] - 1)
     h = _hash64(bkey) & mask
     while True:
@@ -182,22 +202,6 @@ def _lookup_insert(table_keys, table_slots, bkey, next_slot):
             table_slots[h] = next_slot
             return next_slot, True
         h = (h + np.uint64(1)) & mask
-
-
-@nb.njit(cache=True)
-def _block_key_and_offset(key):
-    # key layout (lattice.pack_keys): 21 bits per axis, offset 2^20; block index = floor(index / 8)
-    off = 1 << 20
-    m = (1 << 21) - 1
-    i = ((key >> 42) & m) - off
-    j = ((key >> 21) & m) - off
-    z = (key & m) - off
-    bi = (i >> 3) + off
-    bj = (j >> 3) + off
-    bz = (z >> 3) + off
-    bkey = (bi << 42) | (bj << 21) | bz
-    o = ((i & 7) << 6) | ((j & 7) << 3) | (z & 7)
-    return bkey, o
 
 
 @nb.njit(cache=True)
@@ -214,69 +218,125 @@ def _find(table_keys, table_slots, bkey):
         h = (h + np.uint64(1)) & mask
 
 
-@nb.njit(cache=True)
-def _scatter_add(table_keys, table_slots, block_keys, data, n_blocks, keys, vals, cols, sign, start):
-    """Add ``sign * vals[:, c]`` into column ``cols[c]`` of ``data`` at ``keys``; returns (index reached,
-    n_blocks). ``cols[c] < 0`` skips column c of ``vals``.
+@nb.njit(cache=True, inline="always")
+def _block_key_and_offset(key):
+    """A voxel key -> (its block's key, packed like a voxel key from index // 8; the voxel's offset in it)."""
+    i = ((key >> KEY_SHIFT_I) & KEY_MASK) - KEY_OFFSET
+    j = ((key >> KEY_BITS) & KEY_MASK) - KEY_OFFSET
+    z = (key & KEY_MASK) - KEY_OFFSET
+    bkey = (((i >> 3) + KEY_OFFSET) << KEY_SHIFT_I) | (((j >> 3) + KEY_OFFSET) << KEY_BITS) | ((z >> 3) + KEY_OFFSET)
+    o = ((i & 7) << 6) | ((j & 7) << 3) | (z & 7)
+    return bkey, o
 
-    Stops early (index < len(keys)) when the hash table would pass half full or the block storage is
-    full, so the caller can grow them and call again from there. Block slots are remembered in a small
-    direct-mapped cache indexed by the block's low (j, k) bits: keys in lattice order revisit the same
-    few dozen blocks row after row, so the hash table is probed about once per block and frame.
-    """
-    cap_table = table_keys.shape[0]
-    cap_data = data.shape[0]
+
+@nb.njit(cache=True, inline="always")
+def _voxel_key(bkey, o):
+    """Inverse of :func:`_block_key_and_offset`."""
+    bi = ((bkey >> KEY_SHIFT_I) & KEY_MASK) - KEY_OFFSET
+    bj = ((bkey >> KEY_BITS) & KEY_MASK) - KEY_OFFSET
+    bz = (bkey & KEY_MASK) - KEY_OFFSET
+    i = bi * 8 + (o >> 6) + KEY_OFFSET
+    j = bj * 8 + ((o >> 3) & 7) + KEY_OFFSET
+    z = bz * 8 + (o & 7) + KEY_OFFSET
+    return (i << KEY_SHIFT_I) | (j << KEY_BITS) | z
+
+
+@nb.njit(cache=True, inline="always")
+def _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey):
+    """(slot of block ``bkey``, allocating it; n_blocks). Slot -1: the table or the block storage is full.
+
+    Block slots are remembered in a small direct-mapped cache indexed by the block's low (j, k) bits:
+    keys in lattice order revisit the same few dozen blocks row after row, so the hash table is probed
+    about once per block and frame."""
+    e = (bkey & 7) | ((bkey >> (KEY_BITS - 3)) & 56)  # low 3 bits of the block's k and j indices
+    if cache_keys[e] == bkey:
+        return cache_slots[e], n_blocks
+    if n_blocks >= block_keys.shape[0] or 2 * (n_blocks + 1) > table_keys.shape[0]:
+        slot = _find(table_keys, table_slots, bkey)  # might need a new block: look, do not insert
+        if slot < 0:
+            return -1, n_blocks
+    else:
+        slot, ins = _lookup_insert(table_keys, table_slots, bkey, n_blocks)
+        if ins:
+            block_keys[n_blocks] = bkey
+            n_blocks += 1
+    cache_keys[e] = bkey
+    cache_slots[e] = slot
+    return slot, n_blocks
+
+
+@nb.njit(cache=True)
+def _add_dense(table_keys, table_slots, block_keys, n_blocks, geo, keys, vals, cols, sign, start, lo, hi):
+    """Add ``sign * vals[:, c]`` into column ``cols[c]`` (< 0: skipped) of the dense storage at ``keys``.
+
+    Returns (status, index reached, n_blocks): status 0 done, 1 the table or block storage is full (grow
+    and call again from the index), 2 the row at the index would leave [lo, hi] (widen; nothing of that
+    row was added)."""
     nc = cols.shape[0]
-    run0 = cols[0]
-    for c in range(nc):
-        if cols[c] != cols[0] + c:
-            run0 = -1
     cache_keys = np.full(64, -1, np.int64)
     cache_slots = np.zeros(64, np.int64)
     for n in range(start, keys.shape[0]):
         bkey, o = _block_key_and_offset(keys[n])
-        e = (bkey & 7) | ((bkey >> 18) & 56)  # low 3 bits of the block's k and j indices
-        if cache_keys[e] == bkey:
-            slot = cache_slots[e]
-        else:
-            if n_blocks >= cap_data or 2 * (n_blocks + 1) > cap_table:
-                slot = _find(table_keys, table_slots, bkey)  # might need a new block: look, do not insert
-                if slot < 0:
-                    return n, n_blocks
-            else:
-                slot, ins = _lookup_insert(table_keys, table_slots, bkey, n_blocks)
-                if ins:
-                    block_keys[n_blocks] = bkey
-                    n_blocks += 1
-            cache_keys[e] = bkey
-            cache_slots[e] = slot
-        if run0 >= 0:  # the columns map to one run of memory columns
-            for c in range(nc):
-                data[slot, o, run0 + c] += sign * vals[n, c]
-        else:
-            for c in range(nc):
-                if cols[c] >= 0:
-                    data[slot, o, cols[c]] += sign * vals[n, c]
-    return keys.shape[0], n_blocks
+        slot, n_blocks = _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey)
+        if slot < 0:
+            return 1, n, n_blocks
+        for c in range(nc):
+            if cols[c] >= 0:
+                d = sign * vals[n, c]
+                old = np.int64(geo[slot, o, cols[c]])
+                if (d > 0 and old > hi - d) or (d < 0 and old < lo - d):
+                    return 2, n, n_blocks
+        for c in range(nc):
+            if cols[c] >= 0:
+                geo[slot, o, cols[c]] += sign * vals[n, c]
+    return 0, keys.shape[0], n_blocks
 
 
 @nb.njit(cache=True)
-def _gather(table_keys, table_slots, data, keys, out):
-    """out[n] = data at keys[n] (zeros for voxels in no block)."""
-    mask = np.uint64(table_keys.shape[0] - 1)
-    for n in range(keys.shape[0]):
+def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n_pages, rows, n_rows,
+                keys, vals, cols, sign, start, lo, hi):
+    """Like :func:`_add_dense` for the sparse group: a voxel gets a row (and its block a page of row
+    numbers) the first time a non-zero value reaches it. Returns (status, index, n_blocks, n_pages,
+    n_rows); status 1 also when the page or row storage is full."""
+    nc = cols.shape[0]
+    cache_keys = np.full(64, -1, np.int64)
+    cache_slots = np.zeros(64, np.int64)
+    for n in range(start, keys.shape[0]):
+        nz = False
+        for c in range(nc):
+            if cols[c] >= 0 and vals[n, c] != 0:
+                nz = True
+                break
+        if not nz:
+            continue
         bkey, o = _block_key_and_offset(keys[n])
-        h = _hash64(bkey) & mask
-        while True:
-            k = table_keys[h]
-            if k == bkey:
-                s = table_slots[h]
-                for c in range(data.shape[2]):
-                    out[n, c] = data[s, o, c]
-                break
-            if k == -1:
-                break
-            h = (h + np.uint64(1)) & mask
+        slot, n_blocks = _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey)
+        if slot < 0:
+            return 1, n, n_blocks, n_pages, n_rows
+        p = page_of[slot]
+        if p == 0:
+            if n_pages >= pages.shape[0]:
+                return 1, n, n_blocks, n_pages, n_rows
+            n_pages += 1
+            page_of[slot] = n_pages
+            p = n_pages
+        r = pages[p - 1, o]
+        if r == 0:
+            if n_rows >= rows.shape[0]:
+                return 1, n, n_blocks, n_pages, n_rows
+            n_rows += 1
+            pages[p - 1, o] = n_rows
+            r = n_rows
+        for c in range(nc):
+            if cols[c] >= 0:
+                d = sign * vals[n, c]
+                old = np.int64(rows[r - 1, cols[c]])
+                if (d > 0 and old > hi - d) or (d < 0 and old < lo - d):
+                    return 2, n, n_blocks, n_pages, n_rows
+        for c in range(nc):
+            if cols[c] >= 0:
+                rows[r - 1, cols[c]] += sign * vals[n, c]
+    return 0, keys.shape[0], n_blocks, n_pages, n_rows
 
 
 @nb.njit(cache=True)
@@ -289,40 +349,103 @@ def _rehash(block_keys, n_blocks, cap):
 
 
 @nb.njit(cache=True)
-def _nonzero_voxels(block_keys, data, n_blocks):
-    """Keys (unsorted) and rows of every voxel with a non-zero channel."""
+def _locate(table_keys, table_slots, keys, loc):
+    """loc[n] = slot * 512 + offset of voxel keys[n], -1 when its block is not allocated."""
+    for n in range(keys.shape[0]):
+        bkey, o = _block_key_and_offset(keys[n])
+        s = _find(table_keys, table_slots, bkey)
+        loc[n] = -1 if s < 0 else s * 512 + o
+
+
+@nb.njit(cache=True)
+def _dense_at(geo, loc, out):
+    """out[n] = dense row at loc[n] (zeros where loc < 0), int64."""
+    for n in range(loc.shape[0]):
+        if loc[n] >= 0:
+            s = loc[n] >> 9
+            o = loc[n] & 511
+            for c in range(geo.shape[2]):
+                out[n, c] = geo[s, o, c]
+
+
+@nb.njit(cache=True)
+def _sparse_at(page_of, pages, rows, loc, out):
+    """out[n] = sparse row at loc[n] (zeros where the voxel has none), int64."""
+    for n in range(loc.shape[0]):
+        if loc[n] >= 0:
+            p = page_of[loc[n] >> 9]
+            if p > 0:
+                r = pages[p - 1, loc[n] & 511]
+                if r > 0:
+                    for c in range(rows.shape[1]):
+                        out[n, c] = rows[r - 1, c]
+
+
+@nb.njit(cache=True)
+def _nonzero_voxels(block_keys, n_blocks, geo, page_of, pages, rows, has_sparse):
+    """Keys (unsorted) and locations (slot * 512 + offset) of every voxel with a non-zero channel."""
     cnt = 0
-    for s in range(n_blocks):
-        for o in range(data.shape[1]):
-            for c in range(data.shape[2]):
-                if data[s, o, c] != 0:
+    for pass_ in range(2):
+        if pass_ == 1:
+            keys = np.empty(cnt, np.int64)
+            loc = np.empty(cnt, np.int64)
+            cnt = 0
+        for s in range(n_blocks):
+            p = page_of[s] if has_sparse else 0
+            for o in range(512):
+                nz = False
+                for c in range(geo.shape[2]):
+                    if geo[s, o, c] != 0:
+                        nz = True
+                        break
+                if not nz and p > 0:
+                    r = pages[p - 1, o]
+                    if r > 0:
+                        for c in range(rows.shape[1]):
+                            if rows[r - 1, c] != 0:
+                                nz = True
+                                break
+                if nz:
+                    if pass_ == 1:
+                        keys[cnt] = _voxel_key(block_keys[s], o)
+                        loc[cnt] = s * 512 + o
                     cnt += 1
-                    break
-    keys = np.empty(cnt, np.int64)
-    rows = np.empty((cnt, data.shape[2]), np.int64)
-    off = 1 << 20
-    m = (1 << 21) - 1
-    n = 0
-    for s in range(n_blocks):
-        bk = block_keys[s]
-        bi = ((bk >> 42) & m) - off
-        bj = ((bk >> 21) & m) - off
-        bz = (bk & m) - off
-        for o in range(data.shape[1]):
-            nz = False
-            for c in range(data.shape[2]):
-                if data[s, o, c] != 0:
-                    nz = True
-                    break
-            if nz:
-                i = bi * 8 + (o >> 6) + off
-                j = bj * 8 + ((o >> 3) & 7) + off
-                z = bz * 8 + (o & 7) + off
-                keys[n] = (i << 42) | (j << 21) | z
-                for c in range(data.shape[2]):
-                    rows[n, c] = data[s, o, c]
-                n += 1
-    return keys, rows
+    return keys, loc
+
+
+@nb.njit(cache=True)
+def _has_row(page_of, pages, loc, out):
+    """out[n] = whether the voxel at loc[n] owns a sparse-group row."""
+    for n in range(loc.shape[0]):
+        p = page_of[loc[n] >> 9]
+        out[n] = p > 0 and pages[p - 1, loc[n] & 511] > 0
+
+
+class NonzeroChannels(Mapping):
+    """The channels of a memory's non-zero voxels, read from the memory when asked for (name -> (n, width)
+    int64, in key order): an export that needs the semantic channels only at its occupied voxels reads
+    them there (:meth:`at`) instead of copying them for every voxel."""
+
+    def __init__(self, memory: "VoxelMemory", loc: np.ndarray):
+        self._memory, self._loc, self._cache = memory, loc, {}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._cache:  # a group's channels are read together (one array, sliced)
+            dense = name in GEOMETRY_NAMES
+            group = [s.name for s in self._memory.specs if (s.name in GEOMETRY_NAMES) == dense]
+            self._cache.update(self._memory._channels_at(self._loc, group))
+        return self._cache[name]
+
+    def __iter__(self):
+        return iter(s.name for s in self._memory.specs)
+
+    def __len__(self) -> int:
+        return len(self._memory.specs)
+
+    def at(self, pos: np.ndarray, names=None) -> dict:
+        """Channels (all, or ``names``) at positions ``pos`` (m,) of the key order."""
+        names = list(self) if names is None else list(names)
+        return self._memory._channels_at(self._loc[np.asarray(pos, np.int64)], names)
 
 
 class VoxelMemory:
@@ -331,7 +454,8 @@ class VoxelMemory:
     Parameters
     ----------
     voxel_size : float, metres
-    channels : sequence of :class:`ChannelSpec`
+    channels : sequence of :class:`ChannelSpec`; those named A, N, F, O form the dense group, the others
+        the sparse group
     """
 
     def __init__(self, voxel_size: float, channels: Sequence[ChannelSpec] = GEOMETRY_CHANNELS):
@@ -346,17 +470,32 @@ class VoxelMemory:
             self.offsets[c.name] = o
             o += c.width
         self.total_width = o
-        # initial block storage: INITIAL_BYTES of zeros (untouched pages cost no memory), so that a
-        # room-sized map never pays for growing (copying) its storage; a power of two, >= 256 blocks
-        cap = 256
-        while 2 * cap * BLOCK_VOXELS * self.total_width * 8 <= INITIAL_BYTES:
-            cap *= 2
-        self._table_keys = np.full(4 * cap, -1, np.int64)
-        self._table_slots = np.zeros(4 * cap, np.int64)
-        self._block_keys = np.zeros(cap, np.int64)
-        self._data = np.zeros((cap, BLOCK_VOXELS, self.total_width), np.int64)
+        # every logical column (offsets order) -> its column in the dense or the sparse storage (-1: other group)
+        self._dense_col = np.full(o, -1, np.int64)
+        self._sparse_col = np.full(o, -1, np.int64)
+        nd = ns = 0
+        for c in self.specs:
+            cols = np.arange(self.offsets[c.name], self.offsets[c.name] + c.width)
+            if c.name in GEOMETRY_NAMES:
+                self._dense_col[cols] = np.arange(nd, nd + c.width)
+                nd += c.width
+            else:
+                self._sparse_col[cols] = np.arange(ns, ns + c.width)
+                ns += c.width
+        self.dense_width, self.sparse_width = nd, ns
+        reserve = sys.platform.startswith("linux")
+        cap = RESERVE_BLOCKS if reserve else FALLBACK_BLOCKS
+        self._table_keys = np.full(4096, -1, np.int64)
+        self._table_slots = np.zeros(4096, np.int64)
+        self._block_keys = _reserve(cap, (), np.int64)
+        self._geo = _reserve(cap, (BLOCK_VOXELS, nd), np.int32)
         self.n_blocks = 0
-        self._nonzero = None  # (keys, rows) of the last nonzero(), until the next add
+        self._page_of = _reserve(cap if ns else 1, (), np.int32)
+        self._pages = _reserve(cap if ns else 1, (BLOCK_VOXELS,), np.int32)
+        self._rows = _reserve((RESERVE_ROWS if reserve else BLOCK_VOXELS * FALLBACK_BLOCKS) if ns else 1, (max(ns, 1),),
+                              np.int32)
+        self.n_pages = self.n_rows = 0
+        self._nonzero = None  # (keys, locations) of the last nonzero(), until the next add
 
     def spec(self, name: str) -> ChannelSpec:
         for c in self.specs:
@@ -372,25 +511,79 @@ class VoxelMemory:
             raise ValueError(f"delta channel {name!r} has width {width}, memory expects {spec.width}")
         return np.arange(self.offsets[name], self.offsets[name] + width, dtype=np.int64)
 
+    # -- sizes -----------------------------------------------------------------------------------
+    def nbytes(self) -> dict:
+        """Bytes the memory holds in RAM by part: ``dense`` (allocated blocks' geometry), ``pages`` and
+        ``rows`` (the sparse group), ``table`` (hash table and block keys)."""
+        return {"dense": self.n_blocks * BLOCK_VOXELS * self.dense_width * self._geo.itemsize,
+                "pages": self.n_pages * BLOCK_VOXELS * 4 + (self.n_blocks * 4 if self.sparse_width else 0),
+                "rows": self.n_rows * self.sparse_width * self._rows.itemsize,
+                "table": self._table_keys.nbytes + self._table_slots.nbytes + self.n_blocks * 8}
+
+    @property
+    def allocated_voxels(self) -> int:
+        """Voxels of the allocated blocks (512 a block)."""
+        return self.n_blocks * BLOCK_VOXELS
+
+    # -- changes ---------------------------------------------------------------------------------
     def add(self, delta: "Delta | FrameDelta", sign: int = 1) -> None:
         """Add (``sign=+1``) or subtract (``sign=-1``) a delta (a :class:`FrameDelta`: each of its parts).
-        Exact integer arithmetic."""
+        Exact integer arithmetic; a sum past int64 is refused (:class:`PanovoccError`), never wrapped."""
         if isinstance(delta, FrameDelta):
-            for part in delta.parts:
-                self.add(part, sign)
+            done = []
+            try:
+                for part in delta.parts:
+                    self.add(part, sign)
+                    done.append(part)
+            except PanovoccError:  # a refused part: take the parts added before it out again
+                for part in done:
+                    self.add(part, -sign)
+                raise
             return
         if len(delta) == 0 or not delta.channels:
             return
         self._nonzero = None
         vals, cols = self._values(delta)
         keys = np.ascontiguousarray(delta.keys)
+        valid = cols >= 0
+        dcols = np.where(valid, self._dense_col[np.maximum(cols, 0)], -1)
+        scols = np.where(valid, self._sparse_col[np.maximum(cols, 0)], -1)
+        has_dense, has_sparse = bool(np.any(dcols >= 0)), bool(np.any(scols >= 0))
+        if has_dense:
+            stop = self._add_group("dense", keys, vals, dcols, sign)
+            if stop is not None:  # refused at row ``stop``: the rows before it are taken out again
+                self._add_group("dense", keys[:stop], vals[:stop], dcols, -sign)
+                self._refuse("dense", keys[stop])
+        if has_sparse:
+            stop = self._add_group("sparse", keys, vals, scols, sign)
+            if stop is not None:
+                self._add_group("sparse", keys[:stop], vals[:stop], scols, -sign)
+                if has_dense:
+                    self._add_group("dense", keys, vals, dcols, -sign)
+                self._refuse("sparse", keys[stop])
+
+    def _add_group(self, group: str, keys, vals, cols, sign) -> int | None:
+        """Scatter-add one group's columns; growing and widening as needed. Returns None when done, or the
+        row at which a sum would pass int64 (the rows before it were added)."""
+        sign = np.int64(sign)
         start = 0
         while True:
-            start, self.n_blocks = _scatter_add(self._table_keys, self._table_slots, self._block_keys, self._data,
-                                                self.n_blocks, keys, vals, cols, np.int64(sign), start)
-            if start >= len(keys):
-                break
-            self._grow()
+            if group == "dense":
+                lo, hi = _I32 if self._geo.dtype == np.int32 else _I64
+                status, start, self.n_blocks = _add_dense(self._table_keys, self._table_slots, self._block_keys,
+                                                          self.n_blocks, self._geo, keys, vals, cols, sign, start,
+                                                          lo, hi)
+            else:
+                lo, hi = _I32 if self._rows.dtype == np.int32 else _I64
+                status, start, self.n_blocks, self.n_pages, self.n_rows = _add_sparse(
+                    self._table_keys, self._table_slots, self._block_keys, self.n_blocks, self._page_of,
+                    self._pages, self.n_pages, self._rows, self.n_rows, keys, vals, cols, sign, start, lo, hi)
+            if status == 0:
+                return None
+            if status == 1:
+                self._grow()
+            elif not self._widen(group):
+                return start
 
     def _values(self, delta: Delta) -> tuple[np.ndarray, np.ndarray]:
         """A delta's channels as one (n, m) int64 matrix and, per matrix column, its memory column.
@@ -417,56 +610,123 @@ class VoxelMemory:
         return np.ascontiguousarray(np.concatenate(arrs, axis=1)), np.concatenate(mcols)
 
     def _grow(self) -> None:
+        """Make room: rehash a table past half full; double full block, page or row storage (a copy only
+        past the reservation)."""
         if 2 * (self.n_blocks + 1) > self._table_keys.shape[0]:
             self._table_keys, self._table_slots = _rehash(self._block_keys, self.n_blocks,
                                                            2 * self._table_keys.shape[0])
-        if self.n_blocks >= self._data.shape[0]:
-            cap = 2 * self._data.shape[0]
-            data = np.zeros((cap, BLOCK_VOXELS, self.total_width), np.int64)
-            data[: self.n_blocks] = self._data[: self.n_blocks]
-            self._data = data
-            bk = np.zeros(cap, np.int64)
-            bk[: self.n_blocks] = self._block_keys[: self.n_blocks]
-            self._block_keys = bk
+        if self.n_blocks >= self._block_keys.shape[0]:
+            cap = 2 * self._block_keys.shape[0]
+            self._block_keys = _grown(self._block_keys, self.n_blocks, cap)
+            self._geo = _grown(self._geo, self.n_blocks, cap)
+            if self.sparse_width:
+                self._page_of = _grown(self._page_of, self.n_blocks, cap)
+        if self.sparse_width and self.n_pages >= self._pages.shape[0]:
+            self._pages = _grown(self._pages, self.n_pages, 2 * self._pages.shape[0])
+        if self.sparse_width and self.n_rows >= self._rows.shape[0]:
+            self._rows = _grown(self._rows, self.n_rows, 2 * self._rows.shape[0])
+
+    def _widen(self, group: str) -> bool:
+        """int32 -> int64 storage of ``group`` (a sum left int32); False when it is int64 already."""
+        if (self._geo if group == "dense" else self._rows).dtype == np.int64:
+            return False
+        if group == "dense":
+            self._geo = _grown(self._geo, self.n_blocks, self._geo.shape[0], np.int64)
+        else:
+            self._rows = _grown(self._rows, self.n_rows, self._rows.shape[0], np.int64)
+        return True
+
+    @staticmethod
+    def _refuse(group: str, key) -> None:
+        from ..geometry.lattice import unpack_keys
+
+        raise PanovoccError(f"a {group} memory channel at voxel {unpack_keys(np.array([key]))[0].tolist()} would "
+                            "pass the int64 range: the delta is refused (a value is never wrapped)")
+
+    # -- reads -----------------------------------------------------------------------------------
+    def _channels_at(self, loc: np.ndarray, names) -> dict:
+        """Channels ``names`` at storage locations ``loc`` (n,) (-1: zeros) as name -> (n, width) int64."""
+        loc = np.ascontiguousarray(loc, np.int64)
+        out = {}
+        dense = sparse = None
+        for name in names:
+            spec = self.spec(name)
+            c0 = self.offsets[name]
+            if name in GEOMETRY_NAMES:
+                if dense is None:
+                    dense = np.zeros((len(loc), self.dense_width), np.int64)
+                    _dense_at(self._geo, loc, dense)
+                d0 = self._dense_col[c0]
+                out[name] = dense[:, d0:d0 + spec.width]
+            else:
+                if sparse is None:
+                    sparse = np.zeros((len(loc), self.sparse_width), np.int64)
+                    _sparse_at(self._page_of, self._pages, self._rows, loc, sparse)
+                s0 = self._sparse_col[c0]
+                out[name] = sparse[:, s0:s0 + spec.width]
+        return out
 
     def gather(self, keys: np.ndarray) -> dict:
         """Channel values at voxel ``keys`` (n,) int64 -> dict name -> (n, width) int64 (zeros if absent)."""
         keys = np.ascontiguousarray(keys, dtype=np.int64)
-        out = np.zeros((len(keys), self.total_width), np.int64)
-        _gather(self._table_keys, self._table_slots, self._data, keys, out)
-        return self._split(out)
+        loc = np.empty(len(keys), np.int64)
+        _locate(self._table_keys, self._table_slots, keys, loc)
+        return self._channels_at(loc, [c.name for c in self.specs])
 
     def _split(self, rows: np.ndarray) -> dict:
         return {c.name: rows[:, self.offsets[c.name]: self.offsets[c.name] + c.width] for c in self.specs}
 
-    def nonzero(self) -> tuple[np.ndarray, dict]:
+    def nonzero(self) -> tuple[np.ndarray, NonzeroChannels]:
         """Every voxel with a non-zero channel, in key order.
 
         Returns
         -------
-        keys : (n,) int64 sorted
-        channels : dict name -> (n, width) int64
+        keys : (n,) int64 sorted, read-only
+        channels : :class:`NonzeroChannels`, name -> (n, width) int64, each read when first asked for
         """
         if self._nonzero is None:  # a save and an export of the same memory scan it once
-            keys, rows = _nonzero_voxels(self._block_keys, self._data, self.n_blocks)
+            keys, loc = _nonzero_voxels(self._block_keys, self.n_blocks, self._geo, self._page_of, self._pages,
+                                        self._rows, bool(self.sparse_width))
             order = np.argsort(keys, kind="stable")
-            keys, rows = keys[order], rows[order]
-            keys.flags.writeable = rows.flags.writeable = False
-            self._nonzero = (keys, rows)
-        keys, rows = self._nonzero
-        return keys, self._split(rows)
+            keys, loc = keys[order], loc[order]
+            keys.flags.writeable = loc.flags.writeable = False
+            self._nonzero = (keys, loc)
+        keys, loc = self._nonzero
+        return keys, NonzeroChannels(self, loc)
 
-    def to_arrays(self) -> dict:
-        """The canonical on-disk form (see docs/mapping.md): equal sums give equal arrays."""
+    def to_arrays(self, sparse: bool = False) -> dict:
+        """The canonical on-disk form (see docs/mapping.md): equal sums give equal arrays. ``sparse``: the
+        sparse group's channels as :class:`~panovocc_cli.io.mapstore.SparseRows` over the voxels that hold
+        a row (what ``memory.npz`` is written from, to the same bytes, without the (n, width) arrays)."""
         keys, ch = self.nonzero()
-        out = {"keys": keys, "voxel_size": np.float64(self.voxel_size),
-               "channel_names": np.array([c.name for c in self.specs], dtype=np.str_),
-               "channel_widths": np.array([c.width for c in self.specs], dtype=np.int64),
-               "channel_kinds": np.array([c.kind for c in self.specs], dtype=np.str_),
-               "fixed_scale": np.int64(FIXED_SCALE)}
-        for name, arr in ch.items():
-            out[f"ch_{name}"] = arr
+        if sparse and self.sparse_width:
+            return self._to_sparse_arrays(keys, ch)
+        out = self._header(keys)
+        for name in ch:
+            out[f"ch_{name}"] = ch[name]
         return out
+
+    def _to_sparse_arrays(self, keys, ch: NonzeroChannels) -> dict:
+        from ..io.mapstore import SparseRows
+
+        has = np.zeros(len(keys), np.bool_)
+        _has_row(self._page_of, self._pages, ch._loc, has)
+        pos = np.flatnonzero(has)
+        dense = [s.name for s in self.specs if s.name in GEOMETRY_NAMES]
+        rest = [s.name for s in self.specs if s.name not in GEOMETRY_NAMES]
+        out = self._header(keys)
+        got = self._channels_at(ch._loc, dense)
+        at = ch.at(pos, rest)
+        for s in self.specs:
+            out[f"ch_{s.name}"] = got[s.name] if s.name in got else SparseRows(pos, at[s.name], len(keys))
+        return out
+
+    def _header(self, keys) -> dict:
+        return {"keys": keys, "voxel_size": np.float64(self.voxel_size),
+                "channel_names": np.array([c.name for c in self.specs], dtype=np.str_),
+                "channel_widths": np.array([c.width for c in self.specs], dtype=np.int64),
+                "channel_kinds": np.array([c.kind for c in self.specs], dtype=np.str_),
+                "fixed_scale": np.int64(FIXED_SCALE)}
 
     @classmethod
     def from_arrays(cls, z: Mapping[str, np.ndarray], where=None) -> "VoxelMemory":
@@ -478,7 +738,14 @@ class VoxelMemory:
                 raise PanovoccError(f"fixed_scale {int(z['fixed_scale'])} != {FIXED_SCALE}", where)
             mem = cls(float(z["voxel_size"]), specs)
             keys = np.asarray(z["keys"], np.int64)
-            mem.add(Delta(keys, {s.name: z[f"ch_{s.name}"] for s in specs}))
+            for group in (True, False):  # the geometry, then the rest: rows only where a value is non-zero
+                ch = {s.name: z[f"ch_{s.name}"] for s in specs if (s.name in GEOMETRY_NAMES) == group}
+                full = {k: v for k, v in ch.items() if not hasattr(v, "rows")}
+                if full:
+                    mem.add(Delta(keys, full))
+                for name, v in ch.items():
+                    if hasattr(v, "rows"):  # io.mapstore.SparseRows: its rows only
+                        mem.add(Delta(keys[v.rows], {name: v.values}))
         except KeyError as e:
             raise PanovoccError(f"memory file lacks {e}", where) from None
         return mem

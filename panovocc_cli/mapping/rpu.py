@@ -285,7 +285,7 @@ class ReversibleMemory:
         written on the delta writer thread (:meth:`DeltaStore.commit`) from the memory as it is now."""
         ids, poses = self.poses()
         plain = np.array_equal(ids, np.arange(len(ids)))
-        arrays = self.memory.to_arrays()  # now: the memory may change while a background write runs
+        arrays = self.memory.to_arrays(sparse=True)  # now: the memory may change while a background write runs
 
         def write():
             mapstore.write_memory(folder, arrays, len(ids), poses, None if plain else ids)
@@ -299,7 +299,7 @@ class ReversibleMemory:
 
         Staged deltas left by a killed process are rolled forward or discarded (module docstring)."""
         folder = Path(folder)
-        arrays, done, poses, ids = mapstore.read_memory(folder)
+        arrays, done, poses, ids = mapstore.read_memory(folder, sparse=True)
         memory = VoxelMemory.from_arrays(arrays, folder / mapstore.MEMORY_NAME)
         committed = _pose_table(poses, done, ids)
         settle_staged(folder, committed)

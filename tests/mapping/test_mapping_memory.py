@@ -5,7 +5,7 @@ import pytest
 
 from panovocc_cli.geometry.lattice import pack_keys
 from panovocc_cli.mapping import memory
-from panovocc_cli.mapping.memory import (FIXED_SCALE, ChannelSpec, Delta, VoxelMemory, merge_deltas, quantize)
+from panovocc_cli.mapping.memory import (FIXED_SCALE, ChannelSpec, Delta, FrameDelta, VoxelMemory, quantize)
 
 
 def _random_delta(rng, n=3000, span=60, channels=("A", "N", "F", "O")):
@@ -41,14 +41,20 @@ def test_add_remove_is_bit_identical_and_order_free():
     np.testing.assert_array_equal(got, sums)
 
 
+def _small_storage(monkeypatch):
+    """Start at 256 blocks (and rows) with ordinary zeros: forces table and storage growth by copying."""
+    monkeypatch.setattr(memory, "RESERVE_BLOCKS", 256)
+    monkeypatch.setattr(memory, "RESERVE_ROWS", 256)
+
+
 def test_removing_everything_leaves_an_empty_memory(monkeypatch):
-    monkeypatch.setattr(memory, "INITIAL_BYTES", 0)  # start at 256 blocks: forces table and storage growth
+    _small_storage(monkeypatch)
     rng = np.random.default_rng(1)
     d = _random_delta(rng, n=20000, span=200)
     m = VoxelMemory(0.08)
-    assert m._data.shape[0] == 256
+    assert m._geo.shape[0] == 256
     m.add(d)
-    assert m.n_blocks > 256 and m._data.shape[0] > 256
+    assert m.n_blocks > 256 and m._geo.shape[0] > 256
     keys, ch = m.nonzero()
     np.testing.assert_array_equal(keys, d.keys[np.any(np.hstack(list(d.channels.values())) != 0, axis=1)])
     m.add(d, -1)
@@ -63,9 +69,7 @@ def test_generic_channels_and_merge():
     o1, o2 = np.argsort(k1), np.argsort(k2)
     d1 = Delta(k1[o1], {"A": quantize([[0.5], [1.0]], "fixed")[o1]})
     d2 = Delta(k2[o2], {"E": quantize(np.ones((2, 5)) * 0.25, "fixed"), "count": np.array([[1], [2]])})
-    d = merge_deltas([d1, d2])
-    assert len(d) == 3 and d.channels["E"].shape == (3, 5)
-    m.add(d)
+    m.add(FrameDelta((d1, d2)))
     m2 = VoxelMemory.from_arrays(m.to_arrays())
     got = m2.gather(pack_keys(np.array([[-1, 2, 3]])))
     assert got["A"][0, 0] == FIXED_SCALE and got["E"][0, 0] == FIXED_SCALE // 4
@@ -85,7 +89,7 @@ def _sums_by_key(deltas, name):
 def test_channels_sliced_from_one_rows_array_add_like_separate_arrays(monkeypatch):
     """add() reads a contributor's (n, m) rows in place when every channel is a column slice of it
     (any column order, widths > 1, columns left out, a strided base): same memory as copies."""
-    monkeypatch.setattr(memory, "INITIAL_BYTES", 0)
+    _small_storage(monkeypatch)
     specs = [ChannelSpec("A", 1, "fixed"), ChannelSpec("E", 3, "int"), ChannelSpec("F", 1), ChannelSpec("O", 1)]
     rng = np.random.default_rng(3)
     deltas_view, deltas_copy = [], []
@@ -128,3 +132,95 @@ def test_empty_delta_and_all_zero_depth_frame():
     mem = VoxelMemory(0.08)
     mem.add(delta)
     assert len(mem) == 0
+
+
+def _semantic_specs(C=4):
+    from panovocc_cli.mapping.semantic import semantic_channels
+
+    return memory.GEOMETRY_CHANNELS + semantic_channels(C)
+
+
+def test_geometry_is_16_bytes_a_voxel_and_semantics_only_where_evidence_fell():
+    rng = np.random.default_rng(5)
+    geo = _random_delta(rng, n=40000, span=120)
+    sem_keys = geo.keys[::10]  # a tenth of the voxels hold semantic evidence
+    m = VoxelMemory(0.08, _semantic_specs())
+    m.add(FrameDelta((geo, Delta(sem_keys, {"E": rng.integers(1, 9, (len(sem_keys), 4)),
+                                             "count": np.ones((len(sem_keys), 1), np.int64)}))))
+    b = m.nbytes()
+    assert b["dense"] == m.allocated_voxels * 16  # A N F O as int32
+    assert m.n_rows == len(sem_keys) and b["rows"] == len(sem_keys) * m.sparse_width * 4
+    # rows are not taken by a delta whose semantic values are all zero
+    m.add(Delta(geo.keys, {"S": np.zeros((len(geo.keys), 1), np.int64)}))
+    assert m.n_rows == len(sem_keys)
+    got = m.gather(sem_keys)
+    assert np.all(got["count"] == 1) and np.all(m.gather(geo.keys[1::10])["E"] == 0)
+
+
+def test_sums_past_int32_widen_and_past_int64_are_refused():
+    from panovocc_cli.errors import PanovoccError
+
+    m = VoxelMemory(0.08, _semantic_specs(2))
+    k = pack_keys(np.array([[3, -4, 5], [100, 0, -7]]))
+    big = np.int64(2 ** 31 - 10)
+    m.add(Delta(k, {"A": np.array([[big], [1]]), "E": np.array([[big, 1], [0, 2]])}))
+    assert m._geo.dtype == np.int32 and m._rows.dtype == np.int32
+    m.add(Delta(k, {"A": np.array([[20], [1]]), "E": np.array([[20, 0], [0, 0]])}))  # 2^31 + 10: widened, exact
+    assert m._geo.dtype == np.int64 and m._rows.dtype == np.int64
+    got = m.gather(k)
+    assert got["A"][:, 0].tolist() == [2 ** 31 + 10, 2] and got["E"][0].tolist() == [2 ** 31 + 10, 1]
+    m.add(Delta(k, {"A": np.array([[20], [1]])}), -1)
+    assert m.gather(k)["A"][:, 0].tolist() == [2 ** 31 - 10, 1]
+    near = np.int64(2 ** 62)
+    m.add(Delta(k[:1], {"A": np.array([[near]])}))
+    m.add(Delta(k[:1], {"A": np.array([[near - 2 ** 31]])}))
+    before = m.gather(k)["A"].copy()
+    with pytest.raises(PanovoccError, match="int64"):
+        m.add(Delta(k[::-1], {"A": np.array([[5], [10]])}))  # row 1 would pass 2^63 - 1: refused, row 0 undone
+    np.testing.assert_array_equal(m.gather(k)["A"], before)
+    sem = Delta(k[1:], {"E": np.array([[1, 1]])})
+    with pytest.raises(PanovoccError, match="int64"):  # the geometry part was added, then taken out again
+        m.add(FrameDelta((Delta(k[1:], {"N": np.array([[7]])}), sem, Delta(k[:1], {"A": np.array([[10]])}))))
+    np.testing.assert_array_equal(m.gather(k)["A"], before)
+    assert m.gather(k)["N"].sum() == 0 and m.gather(k)["E"][1].tolist() == [0, 2]
+
+
+def test_storage_types_do_not_change_the_saved_arrays(monkeypatch):
+    """A memory that widened, grew by copying or reserved its storage saves the same arrays."""
+    rng = np.random.default_rng(8)
+    deltas = [_random_delta(rng, n=5000, span=90) for _ in range(3)]
+    a = VoxelMemory(0.08)
+    for d in deltas:
+        a.add(d)
+    _small_storage(monkeypatch)
+    b = VoxelMemory(0.08)
+    b._widen("dense")
+    for d in reversed(deltas):
+        b.add(d)
+    ta, tb = a.to_arrays(), b.to_arrays()
+    assert b._geo.dtype == np.int64 and a._geo.dtype == np.int32
+    for key in ta:
+        np.testing.assert_array_equal(ta[key], tb[key])
+
+
+def test_memory_file_from_sparse_rows_has_the_same_bytes(tmp_path):
+    """memory.npz written from the sparse group's rows equals the file of the dense arrays, byte for byte,
+    and reads back (sparse or dense) to the same memory."""
+    from panovocc_cli.io import mapstore
+
+    rng = np.random.default_rng(9)
+    geo = _random_delta(rng, n=30000, span=100)
+    m = VoxelMemory(0.08, _semantic_specs(3))
+    for step in (3, 17):  # one channel on few rows (stored as rows), counts on many (stored dense)
+        sk = geo.keys[::step]
+        m.add(Delta(sk, {"E": rng.integers(0, 4, (len(sk), 3)), "count": np.ones((len(sk), 1), np.int64)}))
+    m.add(geo)
+    for name, arrays in (("dense", m.to_arrays()), ("sparse", m.to_arrays(sparse=True))):
+        (tmp_path / name).mkdir()
+        mapstore.write_memory(tmp_path / name, arrays, 1, np.eye(4)[None])
+    assert (tmp_path / "dense" / "memory.npz").read_bytes() == (tmp_path / "sparse" / "memory.npz").read_bytes()
+    for sparse in (False, True):
+        arrays = mapstore.read_memory(tmp_path / "sparse", sparse=sparse)[0]
+        back = VoxelMemory.from_arrays(arrays).to_arrays()
+        for key, want in m.to_arrays().items():
+            np.testing.assert_array_equal(back[key], want)
