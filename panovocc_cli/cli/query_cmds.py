@@ -90,7 +90,6 @@ def run_query(cfg: QueryConfig, encode=None) -> dict:
     weights), ``voxels`` (matching voxels), ``clusters`` (the best ``top``, :meth:`Cluster.to_json`) and
     ``best_voxels`` (up to 20 centres in metres with their scores), ``seconds``
     """
-    from ..geometry.lattice import index_to_center, unpack_keys
     from ..io.atomic import check_output
     from ..semantics.query import class_distribution, find_clusters, match_classes, minilm_encoder, voxel_scores
 
@@ -119,9 +118,9 @@ def run_query(cfg: QueryConfig, encode=None) -> dict:
     import numpy as np
 
     mask = np.isin(labels, match.matched) if len(match.matched) else np.zeros(len(labels), bool)
-    clusters = find_clusters(ex.occupied_keys, mask, scores, labels, vocab, h, cfg.min_voxels)
+    clusters = find_clusters(ex.occupied_keys, mask, scores, labels, vocab, h, cfg.min_voxels, ex.origin_index)
     best = np.flatnonzero(mask)[np.argsort(-scores[mask], kind="stable")][:20]
-    centres = index_to_center(unpack_keys(ex.occupied_keys[best]), h)
+    centres = ex.centres(best)
     result = {"query": match.query, "map": str(cfg.map_dir), "text_model": TEXT_MODEL, "vocabulary": vocab,
               "match": match.to_json(), "voxels": int(mask.sum()), "clusters_total": len(clusters),
               "clusters": [c.to_json() for c in clusters[:cfg.top]],
@@ -143,13 +142,12 @@ def _score_colors(s):
 def _write_query_output(cfg: QueryConfig, result: dict, ex, h: float, scores, mask, clusters) -> None:
     import numpy as np
 
-    from ..geometry.lattice import index_to_center, unpack_keys
     from ..io.atomic import output_file, write_text
     from ..io.runconfig import config_path_beside, write_run_config
 
     out = Path(cfg.out)
     suffix = out.suffix.lower()
-    pts = index_to_center(unpack_keys(ex.occupied_keys), h)
+    pts = ex.centres()
     cols = np.tile(np.array(OTHER_COLOR, np.uint8), (len(pts), 1))
     cols[mask] = _score_colors(scores[mask])
     with output_file(out):
@@ -237,7 +235,8 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
         ch["E"] = np.asarray(ch["E"], np.int64) @ M
         words = [w for w, _ in new]
         mcfg = dataclasses.replace(mapper.config, vocab=words)
-        ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, words, mcfg)
+        ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, words, mcfg,
+                           origin_index=mcfg.origin_index())
     finally:
         mapper.close()
     with output_file(cfg.out_npz):

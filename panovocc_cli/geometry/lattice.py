@@ -3,14 +3,14 @@
 Every grid and the mapper share it, so two grids of the same voxel size compare voxel by voxel.
 Keys pack a voxel index (i, j, k) into one int64 (21 bits a signed axis), for hashing and sorting. This
 module is the one definition of that layout: numpy code calls :func:`pack_keys` / :func:`unpack_keys`,
-numba kernels the inlined :func:`pack_key` / :func:`unpack_key` and :data:`KEY_SHIFT_I` ... constants.
-A map keys its voxels relative to its own origin (``geometry.lattice.LocalOrigin``, ``config.json``), so
-the range below is a range around the map's origin, not around the world's.
+numba kernels (the memory's block hash, the PSVF extraction, the semantic evidence) build keys from the
+:data:`KEY_BITS`, :data:`KEY_OFFSET`, :data:`KEY_MASK` and :data:`KEY_SHIFT_I` constants below.
+A map keys its voxels relative to its own origin (:func:`local_origin`, stored in the map's
+``config.json``), so the range below is a range around the map's origin, not around the world's.
 """
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
 from ..config import LATTICE_TOL
@@ -25,18 +25,6 @@ KEY_OFFSET = _OFFSET
 KEY_MASK = _MASK
 KEY_SHIFT_I = 2 * _BITS  # bit position of the i axis (j at KEY_BITS, k at 0)
 
-
-@nb.njit(cache=True, inline="always")
-def pack_key(i, j, k):
-    """One voxel index -> its key (numba; the caller keeps |index| < KEY_RANGE)."""
-    return ((i + KEY_OFFSET) << KEY_SHIFT_I) | ((j + KEY_OFFSET) << KEY_BITS) | (k + KEY_OFFSET)
-
-
-@nb.njit(cache=True, inline="always")
-def unpack_key(key):
-    """One key -> its voxel index (i, j, k) (numba)."""
-    return (((key >> KEY_SHIFT_I) & KEY_MASK) - KEY_OFFSET, ((key >> KEY_BITS) & KEY_MASK) - KEY_OFFSET,
-            (key & KEY_MASK) - KEY_OFFSET)
 
 
 def point_to_index(points, voxel_size: float) -> np.ndarray:
@@ -94,3 +82,23 @@ def bounds_to_grid(lo, hi, voxel_size: float):
     i1 = point_to_index(hi, voxel_size)
     shape = (i1 - i0 + 1).astype(np.int64)
     return i0, shape, index_to_center(i0, voxel_size)
+
+
+def local_origin(position, voxel_size: float) -> np.ndarray:
+    """The lattice index (3,) int64 of the voxel holding ``position`` (3,) metres, world: a map's origin.
+
+    A map made with this origin keys voxel ``n`` of the world lattice as ``n - origin``; its world
+    placement is unchanged (the origin is a whole number of voxels)."""
+    p = np.asarray(position, np.float64).reshape(3)
+    if not np.all(np.isfinite(p)):
+        raise PanovoccError(f"origin {p.tolist()} is not finite")
+    o = np.floor(p / voxel_size)
+    if np.any(np.abs(o) >= 2.0 ** 62):
+        raise PanovoccError(f"origin {p.tolist()} m is beyond any lattice index at voxel size {voxel_size} m")
+    return o.astype(np.int64)
+
+
+def key_reach(voxel_size: float) -> float:
+    """Metres from a map's origin, per axis, that its keys can hold (voxel centres strictly inside)."""
+    return (KEY_RANGE - 2) * float(voxel_size)
+

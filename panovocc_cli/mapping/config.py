@@ -9,6 +9,8 @@ modules holding them import only the standard library, numpy-free parameter modu
 
 from __future__ import annotations
 
+import math
+
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,6 +106,17 @@ class SegevalConfig:
     every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
 
 
+def parse_origin(text) -> list[float]:
+    """``X,Y,Z`` (metres) -> [x, y, z]; one line naming --origin otherwise."""
+    try:
+        vals = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise PanovoccError(f"--origin must be three finite numbers X,Y,Z in metres, got {text!r}")
+    return vals
+
+
 @dataclass
 class MapConfig:
     """Everything ``panovocc map`` needs; saved resolved as ``OUT/config.json``.
@@ -128,6 +141,11 @@ class MapConfig:
     poses_reference: str | None = option(None, cli_type=Path, parse=str,
                                          help="Reference trajectory of --poses-align; default SEQ/poses.txt.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
+    # the map's local origin, metres, world (voxel keys are relative to it); None = the first frame's voxel
+    origin: list | None = option(None, cli_type=str, parse=lambda t: parse_origin(t),
+                                 help="Map origin X,Y,Z in metres (world), snapped to the voxel lattice; voxel keys "
+                                      "are relative to it and reach about 84 km at 8 cm. Default: the first "
+                                      "frame's position.")
     geometry: GeometryParams = field(default_factory=GeometryParams)
     occupancy: OccupancyParams = field(default_factory=OccupancyParams)
     # requested stride; 0 = auto (max(1, W // 256)); the resolved one is geometry.stride
@@ -163,6 +181,7 @@ class MapConfig:
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
                        checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
+                       origin=None if d.get("origin") is None else [float(v) for v in d["origin"]],
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
                        semantic=s, ablation=AblationParams.from_json(d.get("ablation")))
         except (KeyError, TypeError, ValueError, AttributeError) as e:
@@ -175,7 +194,7 @@ class MapConfig:
         s = self.semantic
         return MapperConfig(geometry=self.geometry, occupancy=self.occupancy,
                             vocab=list(s.vocab) if s.enabled else [], use_gsc=s.use_gsc, gsc=s.gsc,
-                            weights=s.weights)
+                            weights=s.weights, origin=None if self.origin is None else list(self.origin))
 
 
 

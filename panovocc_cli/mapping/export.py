@@ -15,7 +15,7 @@ score g is exported either way (the semantic consolidation uses it).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -119,9 +119,11 @@ def height_colors(z: np.ndarray) -> np.ndarray:
     return np.rint(stops[k] * (1 - f) + stops[k + 1] * f).astype(np.uint8)
 
 
-def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean: np.ndarray | None = None):
-    """Centres (n, 3) float64 metres of occupied voxels and their colours (mean RGB if given, else height)."""
-    centres = index_to_center(unpack_keys(occ_keys), voxel_size)
+def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean: np.ndarray | None = None,
+                               origin_index=(0, 0, 0)):
+    """Centres (n, 3) float64 metres (world) of occupied voxels and their colours (mean RGB if given, else
+    height); ``occ_keys`` relative to a map's ``origin_index`` (3,) int64."""
+    centres = index_to_center(unpack_keys(occ_keys) + np.asarray(origin_index, np.int64), voxel_size)
     if rgb_mean is not None:
         return centres, np.clip(np.rint(rgb_mean), 0, 255).astype(np.uint8)
     return centres, height_colors(centres[:, 2])
@@ -133,15 +135,22 @@ class MapExport:
 
     grid : Grid, labels 1..C a vocabulary class (or 254 without class), 0 free, 255 unobserved;
         ``class_names = ["empty"] + vocabulary`` (``["empty"]`` for a geometry-only map)
-    occupied_keys : (m,) int64 sorted keys of the occupied voxels
+    occupied_keys : (m,) int64 sorted keys of the occupied voxels, relative to ``origin_index``
     labels : (m,) int64 vocabulary index per occupied voxel (-1 = no class), or None without semantics
     channels : dict name -> (m, width) int64, the memory channels at the occupied voxels
+    origin_index : (3,) int64, the map's local origin on the world lattice (the grid is in world placement)
     """
 
     grid: Grid
     occupied_keys: np.ndarray
     labels: np.ndarray | None
     channels: dict
+    origin_index: np.ndarray = field(default_factory=lambda: np.zeros(3, np.int64))
+
+    def centres(self, rows=None) -> np.ndarray:
+        """World centres (m, 3) float64 metres of the occupied voxels (or of ``rows`` of them)."""
+        keys = self.occupied_keys if rows is None else self.occupied_keys[rows]
+        return index_to_center(unpack_keys(keys) + self.origin_index, self.grid.voxel_size)
 
     def summary(self) -> dict:
         """Counts: occupied and free voxels, and (with semantics) occupied voxels with a class."""
@@ -152,7 +161,7 @@ class MapExport:
 
 
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
-                  vocab=(), semantic=None) -> MapExport:
+                  vocab=(), semantic=None, origin_index=(0, 0, 0)) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
@@ -166,6 +175,8 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     occupancy : OccupancyParams
     vocab : sequence of str, the vocabulary (empty = geometry only)
     semantic : object with ``use_gsc`` and ``gsc`` (``MapperConfig``), needed with a vocabulary
+    origin_index : (3,) int64, the lattice index the keys are relative to (the map's local origin); the
+        grid is placed in the world by it
     """
     from .semantic import apply_labels, label_occupied
 
@@ -178,7 +189,10 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
         labels = label_occupied(occ_keys, {k: sub[k] for k in ("E", "S", "rgb_sum", "normal_sum", "count")},
                                 g[pos], semantic)
         grid = apply_labels(grid, occ_keys, labels, vocab)
-    return MapExport(grid, occ_keys, labels, sub)
+    oi = np.asarray(origin_index, np.int64).reshape(3)
+    if np.any(oi != 0):  # the grid was built on the local keys: place it in the world
+        grid = Grid(grid.labels, index_to_center(grid.index0 + oi, voxel_size), voxel_size, grid.class_names)
+    return MapExport(grid, occ_keys, labels, sub, oi)
 
 
 def point_colors(ex: MapExport, voxel_size: float, color: str, vocab=()) -> tuple[np.ndarray, np.ndarray]:
@@ -189,7 +203,7 @@ def point_colors(ex: MapExport, voxel_size: float, color: str, vocab=()) -> tupl
     """
     from .semantic import UNCLASSED_COLOR, class_colors
 
-    pts, cols = occupied_points_and_colors(ex.occupied_keys, voxel_size, None)
+    pts, cols = occupied_points_and_colors(ex.occupied_keys, voxel_size, None, ex.origin_index)
     if color == "class" and ex.labels is not None:
         cols = class_colors(ex.labels, vocab)
     elif color == "rgb" and "rgb_sum" in ex.channels:

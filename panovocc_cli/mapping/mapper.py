@@ -75,6 +75,9 @@ class MapperConfig:
         geometry only (logits are then ignored and occupied voxels export as 254)
     use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
     gsc : GSCParams of the labelled export; weights : EvidenceWeights of the semantic evidence
+    origin : (3,) float metres, world, on the lattice (a whole number of voxels), or None: the map's local
+        origin, which its voxel keys are relative to (``geometry.lattice.local_origin``); None = the
+        voxel of the first integrated frame's position
     """
 
     geometry: GeometryParams = field(default_factory=GeometryParams)
@@ -83,6 +86,7 @@ class MapperConfig:
     use_gsc: bool = True
     gsc: GSCParams = field(default_factory=mapper_gsc_params)
     weights: EvidenceWeights = field(default_factory=EvidenceWeights)
+    origin: list | None = None
 
     def check(self) -> "MapperConfig":
         """Validate the parameter ranges; raise :class:`PanovoccError` naming the option."""
@@ -99,7 +103,22 @@ class MapperConfig:
             raise PanovoccError(f"radial must be fit or model, got {g.radial!r}")
         if not all(isinstance(w, str) and w for w in self.vocab) or len(set(self.vocab)) != len(self.vocab):
             raise PanovoccError(f"vocabulary must be distinct class names, got {self.vocab!r}")
+        if self.origin is not None:
+            o = np.asarray(self.origin, np.float64)
+            if o.shape != (3,) or not np.all(np.isfinite(o)):
+                raise PanovoccError(f"--origin must be three finite numbers X,Y,Z (metres), got {self.origin!r}")
+            self.origin = [float(x) for x in self.origin_index() * g.voxel_size]  # snapped to the lattice
         return self
+
+    def origin_index(self) -> np.ndarray:
+        """The origin's lattice index (3,) int64 (zeros without an origin)."""
+        from ..geometry.lattice import local_origin
+
+        if self.origin is None:
+            return np.zeros(3, np.int64)
+        h = self.geometry.voxel_size
+        o = np.asarray(self.origin, np.float64)
+        return local_origin(o + 0.5 * h, h)  # a lattice point (a stored origin) reads back as its own voxel
 
     def channels(self) -> tuple[ChannelSpec, ...]:
         """Memory channels: A N F O, then E S rgb_sum normal_sum count with a vocabulary."""
@@ -110,7 +129,7 @@ class MapperConfig:
         return {"geometry": dataclasses.asdict(self.geometry), "occupancy": dataclasses.asdict(self.occupancy),
                 "semantic": {"vocab": list(self.vocab), "use_gsc": self.use_gsc,
                              "gsc": dataclasses.asdict(self.gsc), "weights": dataclasses.asdict(self.weights)},
-                "format_version": FORMAT_VERSION}
+                "origin": None if self.origin is None else list(self.origin), "format_version": FORMAT_VERSION}
 
     @classmethod
     def from_json(cls, d: dict, where=None) -> "MapperConfig":
@@ -126,8 +145,9 @@ class MapperConfig:
             vocab = [] if s.get("segmenter") == "none" else list(s.get("vocab") or [])
             gsc = dataclasses.replace(mapper_gsc_params(), **s.get("gsc", {}))
             weights = EvidenceWeights(**s.get("weights", {}))
+            origin = d.get("origin")  # absent: a map made before local origins (keys relative to the world's)
             return cls(geometry=g, occupancy=o, vocab=vocab, use_gsc=bool(s.get("use_gsc", True)), gsc=gsc,
-                       weights=weights).check()
+                       weights=weights, origin=None if origin is None else list(origin)).check()
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
 
@@ -219,8 +239,31 @@ class Mapper:
         return len(self._rpu.store)
 
     # -- frames ----------------------------------------------------------------------------------
+    def _local(self, frame: Frame) -> Frame:
+        """The frame with its pose in the map's local frame (origin subtracted), range-checked; the first
+        frame of a map without an origin sets it."""
+        from ..geometry.lattice import key_reach, local_origin
+
+        T = np.asarray(frame.T_world_cam, np.float64)
+        h = self.config.geometry.voxel_size
+        if self.config.origin is None:
+            self.config.origin = [float(x) for x in local_origin(T[:3, 3], h) * h]
+        t = T[:3, 3] - self.config.origin_index() * h
+        reach = key_reach(h) - self.config.geometry.max_range
+        if not np.all(np.abs(t) < reach):
+            raise PanovoccError(f"frame {frame.index}: camera at {np.round(T[:3, 3], 3).tolist()} m is "
+                                f"{float(np.abs(t).max()):.0f} m from the map's origin {self.config.origin}; voxel "
+                                f"keys reach {reach:.0f} m at {h} m voxels less --max-range (use --origin nearer, "
+                                "or a larger --voxel-size)")
+        if not np.any(t != T[:3, 3]):
+            return frame
+        L = T.copy()
+        L[:3, 3] = t
+        return dataclasses.replace(frame, T_world_cam=L)
+
     def _delta(self, frame: Frame) -> FrameDelta:
         frame.check()
+        frame = self._local(frame)
         if self.config.vocab and frame.logits is not None and np.shape(frame.logits)[2] != len(self.config.vocab):
             raise PanovoccError(f"frame {frame.index}: logits have {np.shape(frame.logits)[2]} classes, the "
                                 f"vocabulary {len(self.config.vocab)}")
@@ -285,7 +328,7 @@ class Mapper:
         """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory."""
         keys, ch = self.memory.nonzero()
         return export_memory(keys, ch, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
-                             self.config)
+                             self.config, origin_index=self.config.origin_index())
 
     def prediction(self) -> Grid:
         """The semantic occupancy grid: 1..C vocabulary classes (254 occupied without class), 0 free,

@@ -224,8 +224,30 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
                               poses=cfg.poses if cfg.poses in (None, POSES_SLAM) else str(Path(cfg.poses).resolve()),
                               poses_reference=None if cfg.poses_reference is None
                               else str(Path(cfg.poses_reference).resolve()))
-    MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy).check()
+    MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy, origin=cfg.origin).check()
     return cfg
+
+
+def resolve_origin(cfg: MapConfig, poses: np.ndarray) -> MapConfig:
+    """The run's local origin (``--origin``, or the first frame's voxel), snapped to the lattice, and
+    every frame checked against the reach of the keys before any work: one line naming the first frame
+    outside it (``poses`` (n, 4, 4) float64, world)."""
+    from ..geometry.lattice import key_reach, local_origin
+
+    h = cfg.geometry.voxel_size
+    if cfg.origin is not None:  # the lattice point nearest the given origin
+        o = local_origin(np.asarray(cfg.origin, np.float64) + 0.5 * h, h)
+    else:  # the voxel of the first frame's camera
+        o = local_origin(poses[0, :3, 3] if len(poses) else np.zeros(3), h)
+    reach = key_reach(h) - cfg.geometry.max_range
+    far = np.abs(poses[:, :3, 3] - o * h).max(axis=1) if len(poses) else np.zeros(0)
+    bad = np.flatnonzero(~(far < reach))
+    if len(bad):
+        i = int(bad[0])
+        raise PanovoccError(f"frame {i}: camera at {np.round(poses[i, :3, 3], 3).tolist()} m is {far[i]:.0f} m from "
+                            f"the map's origin {(o * h).tolist()} m; voxel keys reach {reach:.0f} m at {h} m voxels "
+                            "less --max-range (give --origin nearer the capture, or a larger --voxel-size)")
+    return dataclasses.replace(cfg, origin=[float(x) for x in o * h])
 
 
 _OUTPUTS = (CONFIG_NAME, MEMORY_NAME, "poses.txt", "prediction.npz", "map.ply", "trajectory.tum", "slam.json")
@@ -351,7 +373,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
         seq = _open_sequence(cfg)
-        cfg = resolve(cfg, seq.meta.width)
+        cfg = resolve_origin(resolve(cfg, seq.meta.width), seq.poses)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
         frames = sequence_frames(cfg, seq)  # builds the segmenter: fails before any file is written
         out = Path(cfg.out)

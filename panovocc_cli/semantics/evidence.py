@@ -23,6 +23,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
+from ..geometry.lattice import KEY_BITS
 from .params import EvidenceWeights  # noqa: F401  (re-export: its public home until now)
 
 
@@ -214,7 +215,7 @@ def _chunk_voxels(depth, rays, werp, range_scale, R, t, h, key_range, nch, lid, 
                 i0 = np.int64(f0) if ok and not out else 0
                 i1 = np.int64(f1) if ok and not out else 0
                 i2 = np.int64(f2) if ok and not out else 0
-                key = (((((i0 + off) & mask) << 21) | ((i1 + off) & mask)) << 21) | ((i2 + off) & mask)
+                key = (((((i0 + off) & mask) << KEY_BITS) | ((i1 + off) & mask)) << KEY_BITS) | ((i2 + off) & mask)
                 kb[u] = key if ok else np.int64(-1)
             for u in range(W):
                 key = kb[u]

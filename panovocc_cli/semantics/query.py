@@ -191,7 +191,7 @@ class Cluster:
 
 
 def find_clusters(keys: np.ndarray, mask: np.ndarray, scores: np.ndarray, labels: np.ndarray, vocab: Sequence[str],
-                  voxel_size: float, min_voxels: int = 1) -> list[Cluster]:
+                  voxel_size: float, min_voxels: int = 1, origin_index=(0, 0, 0)) -> list[Cluster]:
     """26-connected clusters of the voxels selected by ``mask``.
 
     Parameters
@@ -199,6 +199,7 @@ def find_clusters(keys: np.ndarray, mask: np.ndarray, scores: np.ndarray, labels
     keys : (n,) int64 voxel keys (``geometry.lattice.pack_keys``); mask : (n,) bool, the voxels to group
     scores : (n,) float64; labels : (n,) int64 vocabulary index per voxel (-1 = none)
     vocab : class names; voxel_size : float, metres; min_voxels : smaller clusters are dropped
+    origin_index : (3,) int64, the lattice index the keys are relative to (a map's local origin)
 
     Returns
     -------
@@ -221,7 +222,7 @@ def find_clusters(keys: np.ndarray, mask: np.ndarray, scores: np.ndarray, labels
     order = np.argsort(which, kind="stable")
     starts = np.searchsorted(which[order], np.arange(n + 1))
     out = []
-    centres = index_to_center(idx, voxel_size)
+    centres = index_to_center(idx + np.asarray(origin_index, np.int64), voxel_size)
     for k in range(n):
         sel = order[starts[k]:starts[k + 1]]
         if len(sel) < min_voxels:

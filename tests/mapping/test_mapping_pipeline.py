@@ -201,3 +201,63 @@ def test_prefetched_frames_come_in_order_and_errors_where_they_belong(monkeypatc
     got, _ = run(True, fail_at=6)
     assert got == [(3, "frame3"), (4, "frame4"), (5, "frame5"), "frame 6 is broken"]
     assert list(pipeline.prefetched(lambda i: i, [])) == []
+
+
+def _shifted_copy(seq, dst, shift):
+    """The same capture with every camera moved by ``shift`` (3,) metres: its world moves with it."""
+    import shutil
+
+    from panovocc_cli.io.sequence import Sequence
+
+    shutil.copytree(seq, dst)
+    poses = Sequence(seq).poses.copy()
+    poses[:, :3, 3] += np.asarray(shift, np.float64)
+    write_poses(dst / "poses.txt", poses)
+    return dst
+
+
+def test_a_capture_90_km_away_gives_the_same_grid_in_its_place(room_seq, tmp_path):
+    """Voxel keys are relative to the map's origin (the first frame's voxel): the capture moved 90 km (a
+    whole number of 8 cm voxels) maps to the same grid, placed 90 km away; before local origins it was
+    wrapped into the key range and put about 168 km from where it belongs, with exit status 0."""
+    shift = np.array([90000.0, -45000.0, 120.0])  # 1125000, -562500, 1500 voxels
+    far = _shifted_copy(room_seq, tmp_path / "far", shift)
+    run_map(_cfg(room_seq, tmp_path / "near"), progress=False)
+    run_map(_cfg(far, tmp_path / "mfar"), progress=False)
+    g0, g1 = read_grid(tmp_path / "near" / "prediction.npz"), read_grid(tmp_path / "mfar" / "prediction.npz")
+    np.testing.assert_array_equal(g0.labels, g1.labels)
+    np.testing.assert_allclose(g1.origin - g0.origin, shift, atol=1e-6)
+    np.testing.assert_array_equal(g1.index0 - g0.index0, np.round(shift / 0.08).astype(np.int64))
+    cfg = json.loads((tmp_path / "mfar" / "config.json").read_text())
+    assert np.all(np.abs(np.asarray(cfg["origin"]) - shift) < 5.0)  # the first camera's voxel, 90 km out
+    ply = (tmp_path / "mfar" / "map.ply").read_bytes()
+    assert b"element vertex" in ply
+
+
+def test_a_frame_beyond_the_keys_reach_is_refused_before_any_work(room_seq, tmp_path):
+    """A capture wider than the keys' reach around its origin (here: --origin 0,0,0 with cameras 90 km
+    out) is refused with one line naming the frame and the limit, and leaves no output folder."""
+    far = _shifted_copy(room_seq, tmp_path / "far", [90000.0, 0.0, 0.0])
+    out = tmp_path / "m"
+    with pytest.raises(PanovoccError, match=r"frame 0: camera at .* from the map's origin \[0\.0, 0\.0, 0\.0\].* reach"):
+        run_map(_cfg(far, out, origin=[0.0, 0.0, 0.0]), progress=False)
+    assert not out.exists()
+    # the same capture with its own origin maps
+    run_map(_cfg(far, out, origin=[90000.0, 0.0, 0.0]), progress=False)
+    assert json.loads((out / "config.json").read_text())["origin"] == [90000.0, 0.0, 0.0]
+
+
+def test_mapper_refuses_a_frame_beyond_the_reach_of_its_origin():
+    from panovocc_cli.frame import Frame
+    from panovocc_cli.geometry.cameras import ErpCamera
+    from panovocc_cli.mapping import Mapper, MapperConfig
+
+    m = Mapper(MapperConfig())
+    depth = np.full((16, 32), 2.0, np.float32)
+    rgb = np.zeros((16, 32, 3), np.uint8)
+    m.integrate(Frame(rgb, depth, np.eye(4), ErpCamera(32, 16)))
+    far = np.eye(4)
+    far[0, 3] = 85000.0
+    with pytest.raises(PanovoccError, match="frame 1: camera at .* reach"):
+        m.integrate(Frame(rgb, depth, far, ErpCamera(32, 16), index=1))
+    assert m.frame_ids == [0]

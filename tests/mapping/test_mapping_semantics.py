@@ -93,9 +93,14 @@ def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
     seq = Sequence(sem_seq)
     seg, vocab = build_segmenter("simulated", label_source=sequence_label_source(seq)), parse_vocab()
     acc = {}
+    from panovocc_cli.io.mapstore import read_map_config
+
+    origin = np.asarray(read_map_config(out)["origin"])  # the memory keys voxels relative to the map's origin
     for i in range(N):
         logits = seg.logits(seq.rgb(i), vocab, frame_id=i)
-        keys, ch = frame_semantic_delta(seq.depth(i), seq.rgb(i), logits, seq.poses[i], 0.08)
+        T = seq.poses[i].copy()
+        T[:3, 3] -= origin
+        keys, ch = frame_semantic_delta(seq.depth(i), seq.rgb(i), logits, T, 0.08)
         for k, e, s in zip(keys, ch["E"], ch["S"]):
             a = acc.setdefault(int(k), [np.zeros(len(vocab)), 0.0])
             a[0] += e

@@ -17,6 +17,7 @@ import numba as nb
 import numpy as np
 
 from ...errors import PanovoccError
+from ...geometry.lattice import KEY_BITS, KEY_OFFSET, KEY_SHIFT_I
 from ...runtime import keep_freed_heap  # noqa: F401 (applied by runtime.setup(), not at import)
 from ..freespace import carve
 from ..memory import FIXED_SCALE, Delta
@@ -99,12 +100,12 @@ def _extract(A, hits, F, O, lo, scale, n_fill):
     cnt = counts[nx]
     keys = np.empty(cnt, np.int64)
     out = np.empty((cnt, 4), np.int64)
-    off = 1 << 20
+    off = KEY_OFFSET  # the key layout of geometry.lattice, hoisted out of the inner loops
     for i in nb.prange(nx):
         n = counts[i]
-        ki = (i + lo[0] + off) << 42
+        ki = (i + lo[0] + off) << KEY_SHIFT_I
         for j in range(ny):
-            kj = ki | ((j + lo[1] + off) << 21)
+            kj = ki | ((j + lo[1] + off) << KEY_BITS)
             for k in range(nz):
                 a, nn, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)
                 if keep:
