@@ -258,3 +258,273 @@ def read_map_config(folder: str | Path) -> dict:
 def write_map_config(folder: str | Path, config: dict) -> None:
     """Atomically write ``folder/config.json`` (indented JSON, key order kept)."""
     write_text(Path(folder) / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# the sharded delta log (deltas/shard-NNNNNN.pvd, deltas/commits.pvj)
+#
+# A map's deltas are records appended to a few large shard files, not one file a frame. Record: a
+# 32-byte header (magic b"PVD1", kind u8, 3 zero bytes, frame id i64, payload length u64, payload
+# CRC-32 u32, 4 zero bytes), then the payload. Kinds: PUT (a frame's delta and pose: :func:`encode_delta`)
+# and DROP (the frame is taken out; empty payload). A shard is closed when it passes SHARD_BYTES; a record
+# never spans two shards. The commit journal ``commits.pvj`` lists checkpoints as 24-byte entries (magic
+# b"PVC1", shard i64, end offset i64, CRC-32 of the first 20 bytes u32): what a map holds is
+# the effect of the records up to the last valid entry; anything after it (a killed run's last frames, a
+# torn record) is cut off when the log is opened. A finished save leaves the journal one entry long, so
+# the folder's bytes do not depend on how often the run checkpointed.
+
+import os
+import struct
+import zlib
+
+SHARD_BYTES = 256 * 2 ** 20
+RECORD_MAGIC = b"PVD1"
+COMMIT_MAGIC = b"PVC1"
+JOURNAL_NAME = "commits.pvj"
+PUT, DROP = 1, 2
+_HEADER = struct.Struct("<4sB3xqQI4x")
+_ENTRY = struct.Struct("<4sqqI")  # magic, shard, end, CRC-32 of the 20 bytes before it
+
+
+def shard_path(folder: str | Path, shard: int) -> Path:
+    """``folder/deltas/shard-NNNNNN.pvd``."""
+    return Path(folder) / DELTAS_DIR / f"shard-{int(shard):06d}.pvd"
+
+
+def shard_ids(folder: str | Path) -> list[int]:
+    """The shard numbers present in ``folder/deltas``, ascending."""
+    out = []
+    for p in (Path(folder) / DELTAS_DIR).glob("shard-*.pvd"):
+        try:
+            out.append(int(p.stem.split("-", 1)[1]))
+        except ValueError:
+            continue
+    return sorted(out)
+
+
+def encode_arrays(arrays: Mapping[str, np.ndarray], level: int = DELTA_COMPRESSLEVEL) -> bytes:
+    """Arrays (sorted by name) as one zlib stream: a JSON table (name, dtype, shape) and the raw bytes
+    (little-endian). Deterministic: equal arrays give equal bytes."""
+    names = sorted(arrays)
+    arrs = []
+    for n in names:
+        a = np.asarray(arrays[n])
+        if a.dtype.hasobject:
+            raise TypeError(f"array {n!r} has object dtype")
+        arrs.append(np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<")))
+    table = json.dumps([[n, a.dtype.str, list(a.shape)] for n, a in zip(names, arrs)],
+                       separators=(",", ":")).encode()
+    return zlib.compress(b"".join([struct.pack("<I", len(table)), table] + [a.tobytes() for a in arrs]), level)
+
+
+def decode_arrays(payload: bytes) -> dict:
+    """Inverse of :func:`encode_arrays`."""
+    body = zlib.decompress(payload)
+    (n,) = struct.unpack_from("<I", body, 0)
+    table = json.loads(body[4:4 + n])
+    out, off = {}, 4 + n
+    for name, dt, shape in table:
+        dtype = np.dtype(dt)
+        count = int(np.prod(shape, dtype=np.int64))
+        out[name] = np.frombuffer(body, dtype, count=count, offset=off).reshape(shape)
+        off += count * dtype.itemsize
+    if off != len(body):
+        raise ValueError("payload longer than its table")
+    return out
+
+
+def delta_arrays(parts, T_world_cam: np.ndarray) -> dict:
+    """One frame's delta as named arrays (the layout :func:`write_delta` documents)."""
+    arrays = {"T_world_cam": np.asarray(T_world_cam, np.float64)}
+    for i, (keys, channels) in enumerate(parts):
+        pre = _part_prefix(i)
+        arrays[f"{pre}keys_diff"] = np.diff(np.asarray(keys, np.int64), prepend=np.int64(0))
+        _encode_channels(arrays, pre, len(keys), channels)
+    return arrays
+
+
+def arrays_delta(z: Mapping[str, np.ndarray]) -> tuple[list, np.ndarray]:
+    """Inverse of :func:`delta_arrays`: (parts, T_world_cam (4, 4))."""
+    parts = []
+    while f"{_part_prefix(len(parts))}keys_diff" in z:
+        pre = _part_prefix(len(parts))
+        keys = np.cumsum(np.asarray(z[f"{pre}keys_diff"]).astype(np.int64))
+        parts.append((keys, _decode_channels(z, pre, len(keys))))
+    T = np.asarray(z["T_world_cam"], np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"delta pose has shape {T.shape}, expected (4, 4)")
+    return parts, T
+
+
+def encode_delta(parts, T_world_cam: np.ndarray) -> bytes:
+    """A PUT record's payload."""
+    return encode_arrays(delta_arrays(parts, T_world_cam))
+
+
+def decode_delta(payload: bytes, where=None) -> tuple[list, np.ndarray]:
+    """A PUT record's payload -> (parts, T_world_cam)."""
+    try:
+        return arrays_delta(decode_arrays(payload))
+    except Exception as e:  # noqa: BLE001 - any unreadable payload is the same failure
+        raise PanovoccError(f"cannot read delta ({type(e).__name__}: {e})", where) from None
+
+
+def _entry(shard: int, end: int) -> bytes:
+    head = struct.pack("<4sqq", COMMIT_MAGIC, int(shard), int(end))
+    return head + struct.pack("<I", zlib.crc32(head))
+
+
+def _pos_key(pos) -> tuple[int, int]:
+    return int(pos[0]), int(pos[1])
+
+
+class DeltaLog:
+    """The append-only shard files and the commit journal of one map folder (block comment above).
+
+    Locations are ``(shard, offset, length)`` of a record's payload. Opening reads the journal's last
+    valid entry (the committed end), cuts everything after it and lists in :attr:`records` the records
+    between ``start`` (where a memory snapshot is; ``(0, 0)``: the log's beginning) and that end, as
+    (kind, frame id, location). A ``start`` beyond the committed end is refused (:class:`PanovoccError`):
+    the caller then rebuilds from the beginning.
+    """
+
+    def __init__(self, folder: str | Path, start: tuple[int, int] = (0, 0)):
+        self.folder = Path(folder)
+        (self.folder / DELTAS_DIR).mkdir(parents=True, exist_ok=True)
+        self.journal = self.folder / DELTAS_DIR / JOURNAL_NAME
+        self.records: list[tuple[int, int, tuple[int, int, int]]] = []
+        self._f = None
+        self.committed = self._committed_end()
+        self._cut(*self.committed)
+        if _pos_key(start) > self.committed:
+            raise PanovoccError(f"the memory snapshot is at {list(start)} in the delta log, past its last commit "
+                                f"{list(self.committed)}", self.folder / DELTAS_DIR)
+        self.shard, self.end = self.committed
+        self.records = self._scan(_pos_key(start), self.committed)
+
+    # -- reading ---------------------------------------------------------------------------------
+    def _committed_end(self) -> tuple[int, int]:
+        """The last valid journal entry whose position the shards reach ((0, 0) without any)."""
+        if not self.journal.is_file():
+            return 0, 0
+        data = self.journal.read_bytes()
+        best = (0, 0)
+        for i in range(0, len(data) - _ENTRY.size + 1, _ENTRY.size):
+            e = data[i:i + _ENTRY.size]
+            magic, shard, end, crc = _ENTRY.unpack(e)
+            if magic != COMMIT_MAGIC or crc != zlib.crc32(e[:20]):
+                break
+            p = shard_path(self.folder, shard)
+            if end > 0 and (not p.is_file() or p.stat().st_size < end):
+                raise PanovoccError(f"the delta log ends before its commit at shard {shard} byte {end} (the map "
+                                    "folder was truncated or changed)", p)
+            best = (int(shard), int(end))
+        return best
+
+    def _scan(self, start: tuple[int, int], stop: tuple[int, int]) -> list:
+        """Records from ``start`` to ``stop`` (each checked: a damaged one is refused)."""
+        out = []
+        for s in [s for s in shard_ids(self.folder) if start[0] <= s <= stop[0]]:
+            path = shard_path(self.folder, s)
+            pos = start[1] if s == start[0] else 0
+            limit = stop[1] if s == stop[0] else path.stat().st_size
+            with open(path, "rb") as f:
+                while pos < limit:
+                    f.seek(pos)
+                    head = f.read(_HEADER.size)
+                    ok = len(head) == _HEADER.size
+                    if ok:
+                        magic, kind, fid, length, crc = _HEADER.unpack(head)
+                        ok = magic == RECORD_MAGIC and kind in (PUT, DROP) and pos + _HEADER.size + length <= limit
+                    if ok:
+                        payload = f.read(length)
+                        ok = zlib.crc32(payload) == crc
+                    if not ok:
+                        raise PanovoccError(f"delta record at byte {pos} is damaged (the map folder was changed)", path)
+                    out.append((kind, fid, (s, pos + _HEADER.size, length)))
+                    pos += _HEADER.size + length
+        return out
+
+    def _cut(self, shard: int, offset: int) -> None:
+        """Drop everything after (shard, offset): the uncommitted tail of a killed or failed run."""
+        for s in shard_ids(self.folder):
+            p = shard_path(self.folder, s)
+            if s > shard or (s == shard and offset == 0 and s > 0):
+                p.unlink()
+            elif s == shard and p.stat().st_size > offset:
+                with open(p, "r+b") as f:
+                    f.truncate(offset)
+
+    def read(self, loc: tuple[int, int, int]) -> bytes:
+        """A record's payload, its CRC checked."""
+        s, off, length = (int(v) for v in loc)
+        path = shard_path(self.folder, s)
+        try:
+            with open(path, "rb") as f:
+                f.seek(off - _HEADER.size)
+                head = f.read(_HEADER.size)
+                payload = f.read(length)
+        except OSError as e:
+            raise PanovoccError(f"cannot read delta ({e.strerror or e})", path) from None
+        if len(head) < _HEADER.size or len(payload) < length or _HEADER.unpack(head)[0] != RECORD_MAGIC \
+                or zlib.crc32(payload) != _HEADER.unpack(head)[4]:
+            raise PanovoccError(f"delta record at byte {off} is damaged (the map folder was changed)", path)
+        return payload
+
+    # -- writing ---------------------------------------------------------------------------------
+    def append(self, kind: int, frame_id: int, payload: bytes) -> tuple[int, int, int]:
+        """Append one record; its location. A failed write is cut off again and re-raised."""
+        if self._f is None or self.end >= SHARD_BYTES:
+            self._open_next()
+        start = self.end
+        try:
+            self._f.seek(start)
+            self._f.write(_HEADER.pack(RECORD_MAGIC, kind, int(frame_id), len(payload), zlib.crc32(payload)))
+            self._f.write(payload)
+            self._f.flush()
+        except OSError:
+            try:
+                self._f.truncate(start)
+            except OSError:
+                pass
+            raise
+        self.end = start + _HEADER.size + len(payload)
+        return self.shard, start + _HEADER.size, len(payload)
+
+    def _open_next(self) -> None:
+        if self._f is not None and self.end >= SHARD_BYTES:
+            self._f.close()
+            self._f, self.shard, self.end = None, self.shard + 1, 0
+        if self._f is None:
+            path = shard_path(self.folder, self.shard)
+            self._f = open(path, "r+b" if path.exists() else "w+b")
+
+    def commit(self, compact: bool = False) -> tuple[int, int]:
+        """Make everything appended so far committed: the shard fsync'd, then a journal entry (fsync'd);
+        ``compact``: the journal is replaced by its one last entry (atomically). Returns the position."""
+        if self._f is not None:
+            os.fsync(self._f.fileno())
+        entry = _entry(self.shard, self.end)
+        if compact:
+            from .atomic import atomic_path
+
+            with atomic_path(self.journal) as tmp:
+                tmp.write_bytes(entry)
+        else:
+            with open(self.journal, "ab") as f:
+                f.write(entry)
+                f.flush()
+                os.fsync(f.fileno())
+        self.committed = (self.shard, self.end)
+        return self.committed
+
+    def rollback(self) -> None:
+        """Cut what was appended since the last commit (a command that failed changes nothing)."""
+        self.close()
+        self._cut(*self.committed)
+        self.shard, self.end = self.committed
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+            self._f = None

@@ -55,7 +55,7 @@ from .export import MapExport, export_memory
 from .config import FORMAT_VERSION, mapper_gsc_params
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
 from .params import GeometryParams, OccupancyParams
-from .rpu import DeltaStore, ReversibleMemory
+from .rpu import DeltaStore, ReversibleMemory, has_store
 from .semantic import semantic_channels, semantic_delta
 
 # (2: semantic section; a version-1 config is a geometry-only map)
@@ -202,10 +202,12 @@ class Mapper:
                  frame_source: Callable[[int], Frame] | None = None, _rpu: ReversibleMemory | None = None):
         self.config = config.check()
         if _rpu is None:
-            if folder is not None and (Path(folder) / mapstore.MEMORY_NAME).exists():
+            if folder is not None and has_store(folder):
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
             _rpu = ReversibleMemory(VoxelMemory(config.geometry.voxel_size, config.channels()), DeltaStore(folder))
         self._rpu = _rpu
+        if self.config.origin is None and len(_rpu.store):  # a map made before local origins: the world's
+            self.config.origin = [0.0, 0.0, 0.0]
         self.frame_source = frame_source
         self._frames: dict[int, Frame] = {}
         self._rays: dict = {}
@@ -336,6 +338,12 @@ class Mapper:
         return self.export().grid
 
     # -- persistence -----------------------------------------------------------------------------
+    def checkpoint(self, *, background: bool = False) -> None:
+        """Commit the folder's delta log: what a reopened map holds from now on. Writes one small record
+        (no memory file, no pose file), so its cost does not grow with the map; ``background``: on the
+        delta writer thread (:meth:`close` waits for it and re-raises its error)."""
+        self._rpu.checkpoint(background)
+
     def save(self, folder: str | Path | None = None, *, background: bool = False) -> Path:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 
@@ -366,7 +374,7 @@ class Mapper:
         ``folder``; revising a frame needs ``frame_source``."""
         folder = Path(folder)
         config = MapperConfig.from_json(mapstore.read_map_config(folder), folder / mapstore.CONFIG_NAME)
-        rpu = ReversibleMemory.load(folder)
+        rpu = ReversibleMemory.load(folder, config.channels(), config.geometry.voxel_size)
         specs = tuple(rpu.memory.specs)
         if specs != config.channels() or rpu.memory.voxel_size != config.geometry.voxel_size:
             rpu.close()

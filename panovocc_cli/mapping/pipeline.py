@@ -42,6 +42,7 @@ from .ablation import CorrectionSchedule, check_resumable
 from .config import POSES_SLAM, MapConfig, ReviseConfig, SemanticParams
 from .export import point_colors
 from .mapper import Mapper, MapperConfig
+from .rpu import has_store
 
 CONFIG_NAME = mapstore.CONFIG_NAME
 MEMORY_NAME = mapstore.MEMORY_NAME
@@ -297,11 +298,13 @@ def load_config(out: str | Path) -> MapConfig:
 
 
 def load_memory(out: str | Path):
-    """Reload ``OUT/memory.npz``: (VoxelMemory, frames_done, poses (n, 4, 4) float64 of the frames it holds)."""
-    from .memory import VoxelMemory
-
-    arrays, done, poses, _ = mapstore.read_memory(out)
-    return VoxelMemory.from_arrays(arrays, Path(out) / MEMORY_NAME), done, poses[: done]
+    """A map folder's committed state: (VoxelMemory, frames it holds, their poses (n, 4, 4) float64)."""
+    mapper = Mapper.load(out)
+    try:
+        ids, poses = mapper._rpu.poses()
+        return mapper.memory, len(ids), poses
+    finally:
+        mapper.close()
 
 
 def _remove_unless_started(out: Path) -> None:
@@ -348,7 +351,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                                 "with --overwrite", out)
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
-        if (out / MEMORY_NAME).is_file():
+        if has_store(out):
             mapper = Mapper.load(out, frame_source=frames)
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
@@ -435,7 +438,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             bar.update(1)
             done = i + 1
             if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
-                mapper.save(out, background=True)  # after the pending delta writes: covers deltas on disk only
+                mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -508,19 +511,16 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
-        for i in changed:  # cheap checks first: nothing is staged when a delta file is missing
-            if not mapstore.delta_path(out, i).is_file():
-                raise PanovoccError("delta file missing (the output folder is incomplete)", mapstore.delta_path(out, i))
         t0 = time.perf_counter()
+        # until the save's COMMIT record the map is as it was: a failure leaves records that the next
+        # opening cuts off
         try:
             for i in tqdm(changed, desc="revise", unit="frame", file=sys.stderr, disable=not progress):
                 mapper.revise(i, new_poses[i])
-        except BaseException:  # before the commit point (memory.npz): the map is as it was, drop what was staged
-            mapper.close()
-            for i in changed:
-                mapstore.staged_path(mapstore.delta_path(out, i)).unlink(missing_ok=True)
+            mapper.save(out)
+        except BaseException:
+            mapper._rpu.rollback()
             raise
-        mapper.save(out)
     finally:
         mapper.close()
     summary = {"frames": k, "revised": len(changed), "seconds": time.perf_counter() - t0}

@@ -4,26 +4,31 @@ kept, so any frame can be taken out again and put back under a new pose.
 Everything the method needs is here:
 
 * :class:`DeltaStore` keeps each frame's sparse :class:`~.memory.FrameDelta` (one :class:`~.memory.Delta`
-  per contributor) and the pose it was computed under, in RAM (``folder=None``) or as files in ``folder/deltas/`` (written on a background thread);
+  per contributor) and the pose it was computed under, in RAM (``folder=None``) or as records of the
+  folder's sharded delta log (:class:`panovocc_cli.io.mapstore.DeltaLog`, appended on a background thread);
 * :class:`ReversibleMemory` couples a :class:`~.memory.VoxelMemory` with a store: ``keep`` (add a frame),
   ``revise`` (subtract the kept delta, re-add the recomputed one), ``remove`` (subtract it, forget it),
-  ``save`` / ``load`` (persist the memory and the deltas).
+  ``checkpoint`` (commit the log), ``save`` / ``load`` (a memory snapshot beside the log).
 
 Integer addition is exact and order-independent, so after any sequence of these operations the memory
 equals, bit for bit, the sum of the deltas it keeps: revising frame i equals having used the final pose
 from the start, and removing frame i equals never having added it (tests/mapping/test_mapper.py).
 
-Crash safety of a folder (file formats: :mod:`panovocc_cli.io.mapstore`). ``memory.npz`` is the commit
-point; it lists the committed frames and their poses. A delta of a frame that is not committed is written
-under its final name (a later run recomputes it anyway). A delta that replaces a committed one is staged
-as ``NNNNNN.npz.new`` and a removed frame's file stays until the next commit; after ``memory.npz`` is
-written the staged files are renamed and the removed ones deleted. :meth:`ReversibleMemory.load` rolls a
-staged delta forward when ``memory.npz`` already holds its pose (killed between commit and rename) and
-discards it otherwise; a delta is checked against its committed pose whenever it is read back.
+Crash safety of a folder (file formats: :mod:`panovocc_cli.io.mapstore`). The commit journal's entries
+are the commit points: a checkpoint appends one (and writes nothing else, so its cost does not grow with
+the run); what the folder holds is the effect of the records up to the last entry, and the tail after it
+is cut off when the folder is opened (a killed run's last frames, a torn record). ``save`` writes the
+memory snapshot ``memory.npz``, then ``deltas/snapshot.npz`` (where in the log the snapshot is, each
+frame's record, the snapshot's SHA-256), then commits; :meth:`ReversibleMemory.load` starts from a
+snapshot that matches and is committed, replaying the committed records after it, or else rebuilds the
+memory from the whole log (a run killed before its end, a save that failed half-way). A delta that cannot be written (disk full, read-only folder) is
+taken out of the memory again, so the memory and the store agree, and the run stops with one line.
+Maps made before the log (one ``deltas/NNNNNN.npz`` file a frame) are read as they are.
 """
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +37,14 @@ from ..errors import PanovoccError
 from ..io import mapstore
 from .memory import Delta, FrameDelta, VoxelMemory
 
+SNAPSHOT_NAME = "snapshot.npz"  # in deltas/: the memory snapshot's place in the log
+LEGACY = -1  # shard number of a frame whose delta is a file of its own (maps made before the log)
+
 
 class _BackgroundWriter:
-    """Writes delta files on one worker thread (zlib releases the GIL) while the next frame is mapped.
+    """Runs log appends on one worker thread (zlib releases the GIL) while the next frame is mapped.
 
-    At most one write is pending; ``wait`` re-raises a failed write."""
+    At most one job is pending; ``wait`` re-raises a failed one."""
 
     def __init__(self):
         from concurrent.futures import ThreadPoolExecutor
@@ -54,8 +62,19 @@ class _BackgroundWriter:
             p.result()
 
     def close(self):
-        self.wait()
-        self._pool.shutdown()
+        try:
+            self.wait()
+        finally:
+            self._pool.shutdown()
+
+
+class DeltaWriteError(Exception):
+    """A delta record could not be written: ``frame_id``, the delta that failed and the one it replaced
+    (None for a new frame), so the memory can be put back as the store is (``error``: the OSError)."""
+
+    def __init__(self, frame_id: int, delta: FrameDelta | None, old: FrameDelta | None, error: BaseException, path):
+        super().__init__(str(error))
+        self.frame_id, self.delta, self.old, self.error, self.path = frame_id, delta, old, error, path
 
 
 def _as_frame_delta(delta: "Delta | FrameDelta") -> FrameDelta:
@@ -68,6 +87,16 @@ def _compact_parts(delta: FrameDelta) -> list:
     return [(p.keys.copy(), {name: mapstore._compact(arr) for name, arr in p.channels.items()}) for p in delta.parts]
 
 
+def _frame_delta(parts) -> FrameDelta:
+    return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts))
+
+
+def has_store(folder: str | Path) -> bool:
+    """Whether ``folder`` holds a map's deltas (a log or a memory snapshot)."""
+    folder = Path(folder)
+    return (folder / mapstore.MEMORY_NAME).is_file() or bool(mapstore.shard_ids(folder))
+
+
 class DeltaStore:
     """Each kept frame's delta and pose, by frame id.
 
@@ -75,22 +104,23 @@ class DeltaStore:
     ----------
     folder : path or None
         None: deltas are kept in RAM (channels in their smallest integer type, keys as int64). A folder:
-        deltas are files ``folder/deltas/NNNNNN.npz`` (:mod:`panovocc_cli.io.mapstore`) and only poses
-        stay in RAM.
-    committed : dict frame id -> (4, 4) pose, the frames ``folder/memory.npz`` already holds (from
-        :meth:`ReversibleMemory.load`)
+        deltas are records of ``folder/deltas/`` (:class:`~panovocc_cli.io.mapstore.DeltaLog`) and only
+        poses and record locations stay in RAM. A new store refuses a folder that already holds deltas
+        (:meth:`ReversibleMemory.load` reopens one).
     """
 
-    def __init__(self, folder: str | Path | None = None, committed: dict | None = None):
+    def __init__(self, folder: str | Path | None = None, *, _log=None, _locs=None, _poses=None):
         self.folder = None if folder is None else Path(folder)
-        self.poses: dict[int, np.ndarray] = {k: np.asarray(v, np.float64) for k, v in (committed or {}).items()}
-        self._ram: dict[int, tuple[np.ndarray, dict]] = {}
-        self._committed = dict(self.poses)
-        self._staged: dict[int, Path] = {}
-        self._doomed: set[int] = set()  # committed files to delete at the next commit
+        self.poses: dict[int, np.ndarray] = dict(_poses or {})
+        self._ram: dict[int, list] = {}
+        self._locs: dict[int, tuple] = dict(_locs or {})
+        self._log = _log
         self._writer = None
-        if self.folder is not None:
-            (self.folder / mapstore.DELTAS_DIR).mkdir(parents=True, exist_ok=True)
+        self._inflight = None  # (frame id, new delta, old delta, old pose, old location) of the pending append
+        if self.folder is not None and self._log is None:
+            if has_store(self.folder):
+                raise PanovoccError("already holds a map (reopen it with Mapper.load)", self.folder)
+            self._log = mapstore.DeltaLog(self.folder)
 
     # -- queries ---------------------------------------------------------------------------------
     def __contains__(self, frame_id: int) -> bool:
@@ -109,133 +139,169 @@ class DeltaStore:
         if fid not in self.poses:
             raise PanovoccError(f"frame {fid} is not in the map")
         self.flush()
-        return self._read(fid, self.folder, self._ram, self._staged)
+        if self.folder is None:
+            return FrameDelta(tuple(Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()})
+                                    for keys, ch in self._ram[fid]))
+        return self._read(fid, self._locs[fid])
 
-    def _read(self, fid: int, folder: Path | None, ram: dict, staged: dict) -> FrameDelta:
-        if folder is None:
-            return FrameDelta(tuple(Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()}) for keys, ch in ram[fid]))
-        path = staged.get(fid, mapstore.delta_path(folder, fid))
-        parts, T = mapstore.read_delta(path)
-        if not np.array_equal(T, self.poses[fid]):
-            raise PanovoccError(f"delta of frame {fid} was computed under another pose than memory.npz holds "
+    def _read(self, fid: int, loc) -> FrameDelta:
+        if loc[0] == LEGACY:
+            path = mapstore.delta_path(self.folder, fid)
+            parts, T = mapstore.read_delta(path)
+        else:
+            path = mapstore.shard_path(self.folder, loc[0])
+            parts, T = mapstore.decode_delta(self._log.read(loc), path)
+        if fid in self.poses and not np.array_equal(T, self.poses[fid]):
+            raise PanovoccError(f"delta of frame {fid} was computed under another pose than the map holds "
                                 "(the map folder was changed by another process)", path)
-        return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts))
+        return _frame_delta(parts)
+
+    def nbytes(self) -> int:
+        """Bytes of the kept deltas on disk (the log's live records; 0 in RAM)."""
+        return sum(int(loc[2]) + 32 for loc in self._locs.values() if loc[0] != LEGACY)
 
     # -- changes ---------------------------------------------------------------------------------
-    def put(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
-        """Keep ``delta`` (computed under ``T_world_cam`` (4, 4)) as frame ``frame_id``'s, replacing any."""
+    def put(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray,
+            old: FrameDelta | None = None) -> None:
+        """Keep ``delta`` (computed under ``T_world_cam`` (4, 4)) as frame ``frame_id``'s, replacing any
+        (``old``: the delta it replaces, kept until the record is written, so a failed write can be undone)."""
         fid = int(frame_id)
         T = np.array(T_world_cam, np.float64)
         delta = _as_frame_delta(delta)
-        self.poses[fid] = T
-        self._doomed.discard(fid)
         if self.folder is None:
+            self.poses[fid] = T
             self._ram[fid] = _compact_parts(delta)
             return
-        path = mapstore.delta_path(self.folder, fid)
-        if fid in self._committed:
-            path = mapstore.staged_path(path)
-            self._staged[fid] = path
-        self._submit(mapstore.write_delta, path, [(p.keys, p.channels) for p in delta.parts], T)
+        self.flush()
+        inflight = (fid, delta, old, self.poses.get(fid), self._locs.get(fid))
+        self.poses[fid] = T
+        self._inflight = inflight
+        self._submit(self._append_put, fid, [(p.keys, p.channels) for p in delta.parts], T)
+
+    def _append_put(self, fid: int, parts, T) -> None:
+        self._locs[fid] = self._log.append(mapstore.PUT, fid, mapstore.encode_delta(parts, T))
 
     def drop(self, frame_id: int) -> None:
-        """Forget frame ``frame_id`` (a committed file is deleted at the next commit)."""
+        """Forget frame ``frame_id`` (a DROP record; committed with the next checkpoint or save)."""
         fid = int(frame_id)
         if fid not in self.poses:
             raise PanovoccError(f"frame {fid} is not in the map")
+        self.flush()
         del self.poses[fid]
         if self.folder is None:
             del self._ram[fid]
             return
-        self.flush()
-        staged = self._staged.pop(fid, None)
-        if staged is not None:
-            staged.unlink(missing_ok=True)
-        if fid in self._committed:
-            self._doomed.add(fid)
-        else:
-            mapstore.delta_path(self.folder, fid).unlink(missing_ok=True)
+        self._locs.pop(fid, None)
+        self._submit(self._log.append, mapstore.DROP, fid, b"")
 
     def _submit(self, fn, *args) -> None:
-        """Run ``fn(*args)`` on the writer thread (started on first use), after the writes queued before it."""
+        """Run ``fn(*args)`` on the writer thread (started on first use), after the jobs queued before it."""
         if self._writer is None:
             self._writer = _BackgroundWriter()
         self._writer.submit(fn, *args)
 
     def flush(self) -> None:
-        """Wait for the pending delta write (re-raises its error)."""
-        if self._writer is not None:
+        """Wait for the pending append. A failed delta write puts the store back as it was before that
+        frame and raises :class:`DeltaWriteError` (the memory's side is :class:`ReversibleMemory`'s)."""
+        if self._writer is None:
+            return
+        inflight, self._inflight = self._inflight, None
+        try:
             self._writer.wait()
+        except OSError as e:
+            if inflight is None:
+                raise
+            fid, delta, old, old_T, old_loc = inflight
+            if old_T is None:
+                self.poses.pop(fid, None)
+                self._locs.pop(fid, None)
+            else:
+                self.poses[fid], self._locs[fid] = old_T, old_loc
+            raise DeltaWriteError(fid, delta, old, e, mapstore.shard_path(self.folder, self._log.shard)) from None
 
     def close(self) -> None:
         if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+            try:
+                self.flush()
+            finally:
+                self._writer.close()
+                self._writer = None
 
     # -- persistence -----------------------------------------------------------------------------
-    def commit(self, folder: str | Path, write_memory, background: bool = False) -> None:
-        """Make ``folder`` hold every kept delta, with ``write_memory()`` (which writes ``memory.npz``,
-        the commit point) called once all delta files are on disk. A store kept in RAM or in another
-        folder moves into ``folder`` (its RAM is freed; later changes go there).
-
-        ``background``: ``write_memory`` and the renames after it run on the delta writer thread, after
-        the delta writes queued before them (so in the same order); :meth:`flush` or :meth:`close` waits
-        for them and re-raises their error."""
-        folder = Path(folder)
-        if self.folder is None or self.folder.resolve() != folder.resolve():
-            self._move_to(folder)
+    def commit(self, background: bool = False, before=None) -> None:
+        """A checkpoint: every kept delta on disk, ``before()`` (if given: the snapshot files of a save),
+        then a journal entry (fsync'd); on the writer thread with ``background``."""
         self.flush()
-        staged, doomed = sorted(self._staged.items()), sorted(self._doomed)
 
         def finish():
-            write_memory()
-            for fid, tmp in staged:
-                tmp.replace(mapstore.delta_path(folder, fid))
-            for fid in doomed:
-                mapstore.delta_path(folder, fid).unlink(missing_ok=True)
+            if before is not None:
+                before()
+            self._log.commit(compact=before is not None)
 
         if background:
             self._submit(finish)
         else:
             finish()
-        self._staged.clear()
-        self._doomed.clear()
-        self._committed = dict(self.poses)
 
-    def _move_to(self, folder: Path) -> None:
-        """Write every kept delta into ``folder`` (staged where its memory.npz holds that frame)."""
-        committed = _committed_poses(folder) if (folder / mapstore.MEMORY_NAME).is_file() else {}
+    def rollback(self) -> None:
+        """Cut the records appended since the last commit (a failed command leaves the folder as it was)."""
+        if self._writer is not None:
+            try:
+                self._writer.wait()
+            except Exception:  # noqa: BLE001 - the failure is being handled by the caller
+                pass
+        self._inflight = None
+        if self._log is not None:
+            self._log.rollback()
+
+    def move_to(self, folder: Path) -> None:
+        """Write every kept delta into ``folder``'s new log (a RAM store, or a store of another folder)."""
         self.flush()
-        old = (self.folder, self._ram, self._staged)
-        self.folder, self._ram, self._staged = folder, {}, {}
-        self._committed = committed
-        self._doomed = set(committed) - set(self.poses)
-        (folder / mapstore.DELTAS_DIR).mkdir(parents=True, exist_ok=True)
+        old = (self.folder, dict(self._locs), self._log)
+        reading = DeltaStore.__new__(DeltaStore)
+        reading.folder, reading._locs, reading._log, reading.poses = old[0], old[1], old[2], self.poses
+        reading._ram, reading._writer, reading._inflight = self._ram, None, None
+        log = mapstore.DeltaLog(folder) if not has_store(folder) else None
+        if log is None:
+            raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
+        self.folder, self._log, self._locs = folder, log, {}
         for fid in self.ids():
-            self.put(fid, self._read(fid, *old), self.poses[fid])
-            if old[0] is None:
-                del old[1][fid]  # free the RAM copy as soon as its file is queued
-        self.flush()
+            d = reading.get(fid)
+            self._locs[fid] = log.append(mapstore.PUT, fid, mapstore.encode_delta(
+                [(p.keys, p.channels) for p in d.parts], self.poses[fid]))
+            self._ram.pop(fid, None)  # free the RAM copy as soon as its record is written
+        if old[2] is not None:
+            old[2].close()
+
+    def snapshot_index(self) -> dict:
+        """Where each kept frame's record is, and the log position and commit number: the arrays of
+        ``deltas/snapshot.npz`` (call after :meth:`commit`)."""
+        ids = np.asarray(self.ids(), np.int64)
+        locs = np.asarray([self._locs[i] for i in ids], np.int64).reshape(-1, 3)
+        return {"frame_ids": ids, "locations": locs, "log_end": np.asarray([self._log.shard, self._log.end], np.int64)}
 
 
-def _committed_poses(folder: Path) -> dict:
-    """Frame id -> pose of the frames ``folder/memory.npz`` holds (reads only the small arrays)."""
-    path = folder / mapstore.MEMORY_NAME
+def _read_snapshot(folder: Path, memory_path: Path):
+    """deltas/snapshot.npz when it describes ``memory_path`` (its SHA-256 matches), else None."""
+    path = folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME
+    if not path.is_file():
+        return None
     try:
         with np.load(path, allow_pickle=False) as z:
-            poses = np.asarray(z["poses"], np.float64)
-            done = int(z["frames_done"])
-            ids = np.asarray(z["frame_ids"], np.int64) if "frame_ids" in z.files else None
-    except Exception as e:  # noqa: BLE001
-        raise PanovoccError(f"cannot read memory ({type(e).__name__}: {e})", path) from None
-    return _pose_table(poses, done, ids)
+            snap = {k: np.asarray(z[k]) for k in z.files}
+    except Exception:  # noqa: BLE001 - an unreadable snapshot is rebuilt from the log
+        return None
+    if str(snap.get("memory_sha256", "")) != _sha256(memory_path):
+        return None
+    return snap
 
 
-def _pose_table(poses: np.ndarray, frames_done: int, ids: np.ndarray | None) -> dict:
-    if ids is None:  # frames 0..frames_done-1 (a map run's checkpoint may list the poses of all its frames)
-        ids = np.arange(min(frames_done, len(poses)))
-        poses = poses[: len(ids)]
-    return {int(i): np.asarray(T, np.float64) for i, T in zip(ids, poses)}
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 class ReversibleMemory:
@@ -251,22 +317,41 @@ class ReversibleMemory:
         self.memory = memory
         self.store = store
 
+    def _flush(self) -> None:
+        """The store's pending write; a failed delta write is undone in the memory too, then one line."""
+        try:
+            self.store.flush()
+        except DeltaWriteError as e:
+            if e.delta is not None:
+                self.memory.add(e.delta, -1)
+            if e.old is not None:
+                self.memory.add(e.old, +1)
+            err = e.error
+            raise PanovoccError(f"cannot write the delta of frame {e.frame_id} "
+                                f"({getattr(err, 'strerror', None) or err}); the map holds the frames before it",
+                                e.path) from None
+
     def keep(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
         """Add a new frame's delta (computed under ``T_world_cam``) to the memory and keep it."""
+        self._flush()
         if frame_id in self.store:
             raise PanovoccError(f"frame {frame_id} is already in the map (revise or remove it)")
+        delta = _as_frame_delta(delta)
         self.memory.add(delta, +1)
         self.store.put(frame_id, delta, T_world_cam)
 
     def revise(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
         """Subtract the kept delta of ``frame_id`` and add ``delta`` (recomputed under ``T_world_cam``)."""
+        self._flush()
         old = self.store.get(frame_id)
+        delta = _as_frame_delta(delta)
         self.memory.add(old, -1)
         self.memory.add(delta, +1)
-        self.store.put(frame_id, delta, T_world_cam)
+        self.store.put(frame_id, delta, T_world_cam, old=old)
 
     def remove(self, frame_id: int) -> None:
         """Subtract the kept delta of ``frame_id`` and forget the frame."""
+        self._flush()
         old = self.store.get(frame_id)
         self.memory.add(old, -1)
         self.store.drop(frame_id)
@@ -277,40 +362,129 @@ class ReversibleMemory:
         poses = np.stack([self.store.poses[i] for i in ids]) if ids else np.zeros((0, 4, 4))
         return np.asarray(ids, np.int64), poses
 
+    def checkpoint(self, background: bool = False) -> None:
+        """Commit what the folder's log holds (a COMMIT record; nothing else is written)."""
+        self._flush()
+        if self.store.folder is None:
+            raise PanovoccError("a checkpoint needs a folder (this memory keeps its deltas in RAM)")
+        self.store.commit(background)
+
     def save(self, folder: str | Path, background: bool = False) -> None:
-        """Persist into ``folder``: every kept delta, then ``memory.npz`` (the commit point).
+        """Persist into ``folder``: every kept delta and a COMMIT, then the memory snapshot ``memory.npz``
+        and ``deltas/snapshot.npz``.
 
         ``memory.npz`` lists the kept frames' poses in id order; their ids are stored too unless they are
-        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the memory file is
-        written on the delta writer thread (:meth:`DeltaStore.commit`) from the memory as it is now."""
+        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the snapshot and the
+        commit are written on the writer thread from the memory as it is now."""
+        self._flush()
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        if self.store.folder is None or self.store.folder.resolve() != folder.resolve():
+            self.store.move_to(folder)
         ids, poses = self.poses()
         plain = np.array_equal(ids, np.arange(len(ids)))
         arrays = self.memory.to_arrays(sparse=True)  # now: the memory may change while a background write runs
+        store = self.store
 
-        def write():
+        def write():  # before the commit: a failure here leaves the folder's committed state as it was
+            index = store.snapshot_index()
             mapstore.write_memory(folder, arrays, len(ids), poses, None if plain else ids)
+            index["memory_sha256"] = np.array(_sha256(folder / mapstore.MEMORY_NAME))
+            from ..io.npz import write_npz
 
-        Path(folder).mkdir(parents=True, exist_ok=True)
-        self.store.commit(folder, write, background)
+            write_npz(folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
+
+        store.commit(background, before=write)
+
+    def rollback(self) -> None:
+        """After a failed command: cut the uncommitted records (the memory object is not usable after)."""
+        self.store.rollback()
 
     @classmethod
-    def load(cls, folder: str | Path) -> "ReversibleMemory":
-        """Reopen a saved folder; the deltas stay on disk there (read back when revised or removed).
+    def load(cls, folder: str | Path, channels=None, voxel_size: float | None = None) -> "ReversibleMemory":
+        """Reopen a folder; the deltas stay on disk there (read back when revised or removed).
 
-        Staged deltas left by a killed process are rolled forward or discarded (module docstring)."""
+        From the memory snapshot when ``deltas/snapshot.npz`` matches it, replaying the log's committed
+        records after it; else the memory is rebuilt from the whole log (``channels`` and ``voxel_size``
+        give its layout when there is no ``memory.npz``). The log's uncommitted tail is cut off. A map
+        made before the log (one delta file a frame) loads as it was saved."""
         folder = Path(folder)
-        arrays, done, poses, ids = mapstore.read_memory(folder, sparse=True)
-        memory = VoxelMemory.from_arrays(arrays, folder / mapstore.MEMORY_NAME)
-        committed = _pose_table(poses, done, ids)
-        settle_staged(folder, committed)
-        return cls(memory, DeltaStore(folder, committed))
+        mem_path = folder / mapstore.MEMORY_NAME
+        has_log = bool(mapstore.shard_ids(folder))
+        if mem_path.is_file():
+            arrays, done, poses, ids = mapstore.read_memory(folder, sparse=True)
+            committed = _pose_table(poses, done, ids)
+            snap = _read_snapshot(folder, mem_path) if has_log or (folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME).is_file() \
+                else None
+            if snap is None and not has_log:  # a map made before the log
+                settle_staged(folder, committed)
+                memory = VoxelMemory.from_arrays(arrays, mem_path)
+                locs = {fid: (LEGACY, 0, 0) for fid in committed}
+                log = mapstore.DeltaLog(folder)
+                return cls(memory, DeltaStore(folder, _log=log, _locs=locs, _poses=committed))
+            if snap is not None:
+                locs = {int(i): tuple(int(v) for v in loc) for i, loc in zip(snap["frame_ids"], snap["locations"])}
+                if set(locs) != set(committed):
+                    raise PanovoccError("deltas/snapshot.npz does not list the frames memory.npz holds", mem_path)
+                try:
+                    log = mapstore.DeltaLog(folder, tuple(int(v) for v in snap["log_end"]))
+                except PanovoccError:  # the snapshot was written by a save that did not commit: rebuild
+                    log = None
+                if log is not None:
+                    memory = VoxelMemory.from_arrays(arrays, mem_path)
+                    rm = cls(memory, DeltaStore(folder, _log=log, _locs=locs, _poses=committed))
+                    rm._replay(log.records)
+                    return rm
+            channels = memory_specs(arrays) if channels is None else channels
+            voxel_size = float(arrays["voxel_size"]) if voxel_size is None else voxel_size
+        if channels is None or voxel_size is None:
+            raise PanovoccError("memory.npz not found (not a panovocc map folder, or the run stopped before "
+                                "its first checkpoint)", mem_path)
+        log = mapstore.DeltaLog(folder)  # no usable snapshot: the memory is the sum of the committed records
+        rm = cls(VoxelMemory(voxel_size, channels), DeltaStore(folder, _log=log))
+        rm._replay(log.records)
+        return rm
+
+    def _replay(self, records) -> None:
+        """Apply committed log records (after the snapshot) to the memory and the store's index."""
+        st = self.store
+        for kind, fid, loc in records:
+            if fid in st.poses:
+                self.memory.add(st._read(fid, st._locs[fid]), -1)
+            if kind == mapstore.PUT:
+                path = mapstore.shard_path(st.folder, loc[0])
+                parts, T = mapstore.decode_delta(st._log.read(loc), path)
+                st.poses[fid], st._locs[fid] = T, loc
+                self.memory.add(_frame_delta(parts), +1)
+            else:
+                st.poses.pop(fid, None)
+                st._locs.pop(fid, None)
 
     def close(self) -> None:
-        self.store.close()
+        try:
+            self._flush()
+        finally:
+            self.store.close()
+
+
+def memory_specs(arrays) -> list:
+    """The channel specs of a memory file's arrays."""
+    from .memory import ChannelSpec
+
+    return [ChannelSpec(str(n), int(w), str(k)) for n, w, k in
+            zip(arrays["channel_names"], arrays["channel_widths"], arrays["channel_kinds"])]
+
+
+def _pose_table(poses: np.ndarray, frames_done: int, ids: np.ndarray | None) -> dict:
+    if ids is None:  # frames 0..frames_done-1 (a map run's checkpoint may list the poses of all its frames)
+        ids = np.arange(min(frames_done, len(poses)))
+        poses = poses[: len(ids)]
+    return {int(i): np.asarray(T, np.float64) for i, T in zip(ids, poses)}
 
 
 def settle_staged(folder: Path, committed: dict) -> None:
-    """Roll staged deltas forward when ``memory.npz`` already holds their pose, else delete them."""
+    """Maps made before the log: roll staged deltas forward when ``memory.npz`` already holds their pose,
+    else delete them."""
     for tmp in sorted((Path(folder) / mapstore.DELTAS_DIR).glob("*.npz" + mapstore.STAGED_SUFFIX)):
         try:
             fid = int(tmp.name.split(".")[0])

@@ -74,9 +74,15 @@ def test_frame_by_frame_equals_map_command(mapped, tmp_path):
     saved = mapper.save(tmp_path / "api")
     for name in ("memory.npz", "poses.txt"):
         assert (saved / name).read_bytes() == (out / name).read_bytes(), name
+    a, b = Mapper.load(saved), Mapper.load(out)  # the same records: each frame's delta, bit for bit
     for i in range(N):
-        p = mapstore.delta_path(saved, i)
-        assert p.read_bytes() == mapstore.delta_path(out, i).read_bytes()
+        for pa, pb in zip(a._rpu.store.get(i).parts, b._rpu.store.get(i).parts, strict=True):
+            np.testing.assert_array_equal(pa.keys, pb.keys)
+            assert pa.channels.keys() == pb.channels.keys()
+            for k in pa.channels:
+                np.testing.assert_array_equal(pa.channels[k], pb.channels[k])
+    a.close()
+    b.close()
     # in a folder from the start (deltas written as they are made): the same bytes
     with Mapper(cfg.mapper_config(), folder=tmp_path / "f", frame_source=frames) as m2:
         for i in range(N):
@@ -116,11 +122,9 @@ def test_revise_during_run_equals_final_pose_from_start(mapped, tmp_path):
         f.integrate(frame(i, _moved(true[i], i) if i == 1 else true[i]))
         if i == 2:
             f.save()
-    f.revise(1, true[1])  # frame 1 is committed: its new delta is staged until the next save
+    f.revise(1, true[1])  # frame 1 is committed: its new record counts from the next commit on
     f.close()  # waits for the background write (the mapper stays usable)
-    assert (mapstore.staged_path(mapstore.delta_path(tmp_path / "f", 1))).exists()
     f.save()
-    assert not list((tmp_path / "f" / "deltas").glob("*.new"))
     f.close()
     _assert_same_memory(f, direct)
     d = tmp_path / "d"
@@ -164,7 +168,6 @@ def test_remove_equals_never_added_and_save_load(mapped, tmp_path):
     _assert_same_memory(back, full)
     back.remove(4)
     back.save()
-    assert not mapstore.delta_path(folder, 4).exists() and mapstore.delta_path(folder, 2).exists()
     again = Mapper.load(folder)
     assert again.frame_ids == [0, 1, 2, 3]
     full.remove(4)
@@ -174,33 +177,50 @@ def test_remove_equals_never_added_and_save_load(mapped, tmp_path):
         Mapper(cfg.mapper_config(), folder=folder)
 
 
-def test_staged_delta_rolled_forward_or_discarded(mapped, tmp_path):
-    """A revise killed after memory.npz (the commit) but before the rename is completed on load."""
+def test_only_committed_records_count_and_a_torn_tail_is_cut(mapped, tmp_path):
+    """The log's COMMIT records are the commit points: an uncommitted revision (a killed run) is cut off
+    when the folder is opened; a committed one counts even without a new memory snapshot (replayed); a torn
+    record at the end is cut back to the last commit. Each time the memory equals the direct sum."""
     _, cfg, frames = mapped
-    m = Mapper(cfg.mapper_config(), folder=tmp_path / "m", frame_source=frames)
+
+    def direct(poses):
+        ref = Mapper(cfg.mapper_config())
+        for i, T in poses.items():
+            ref.integrate(dataclasses.replace(frames(i), T_world_cam=T))
+        return ref
+
+    folder = tmp_path / "m"
+    m = Mapper(cfg.mapper_config(), folder=folder, frame_source=frames)
     for i in range(3):
         m.integrate(frames(i))
     m.save()
-    T = _moved(frames(1).T_world_cam, 3)
+    true = {i: frames(i).T_world_cam for i in range(3)}
+    T = _moved(true[1], 3)
     m.revise(1, T)
-    m.close()
-    staged = mapstore.staged_path(mapstore.delta_path(tmp_path / "m", 1))
-    new_bytes = staged.read_bytes()
-    # not committed: a reload discards the staged delta and keeps the old pose
-    back = Mapper.load(tmp_path / "m")
-    assert not staged.exists() and np.array_equal(back.pose(1), frames(1).T_world_cam)
-    # committed (memory.npz written) but not renamed: rolled forward
-    staged.write_bytes(new_bytes)
-    m._rpu.store.commit = lambda folder, write, background=False: write()  # the kill: memory written, nothing renamed
-    m._rpu.save(tmp_path / "m")
-    assert staged.exists()
-    back = Mapper.load(tmp_path / "m")
-    assert not staged.exists() and np.array_equal(back.pose(1), T)
-    back.remove(1)  # reads the delta: its pose matches memory.npz
-    ref = Mapper(cfg.mapper_config())
-    for i in (0, 2):
-        ref.integrate(frames(i))
-    _assert_same_memory(back, ref)
+    m.close()  # killed here: the revision's record is on disk, not committed
+    back = Mapper.load(folder)
+    assert np.array_equal(back.pose(1), true[1])
+    _assert_same_memory(back, direct(true))
+    back.frame_source = frames
+    back.revise(1, T)
+    back.checkpoint()  # committed, memory.npz not rewritten
+    back.integrate(frames(3))  # and one more frame after the commit, not committed
+    back.close()
+    again = Mapper.load(folder)
+    assert again.frame_ids == [0, 1, 2] and np.array_equal(again.pose(1), T)
+    _assert_same_memory(again, direct({**true, 1: T}))
+    again.frame_source = frames
+    again.integrate(frames(3))
+    again.checkpoint()
+    again.close()
+    shard = mapstore.shard_path(folder, mapstore.shard_ids(folder)[-1])
+    size = shard.stat().st_size
+    with open(shard, "ab") as fh:  # a torn record after the last commit (a kill mid-write)
+        fh.write(b"PVD1\x01" + b"\x00" * 40)
+    torn = Mapper.load(folder)
+    assert torn.frame_ids == [0, 1, 2, 3] and shard.stat().st_size == size
+    _assert_same_memory(torn, direct({**true, 1: T, 3: frames(3).T_world_cam}))
+    torn.close()
 
 
 def test_frame_checks_and_empty_depth_frame(mapped):
