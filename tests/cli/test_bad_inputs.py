@@ -44,6 +44,19 @@ def scene_copy(b: Path, t: Path) -> Path:
     return t / "scene"
 
 
+def _damage(path: Path, offset: int) -> None:
+    """Flip one byte of a file (a damaged delta record)."""
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _truncate_half(path: Path) -> None:
+    """Cut a file to half its size (a delta log truncated below its last commit)."""
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size // 2)
+
+
 def map_copy(b: Path, t: Path) -> Path:
     shutil.copytree(b / "map", t / "map")
     return t / "map"
@@ -561,9 +574,15 @@ CASES = [
     C("mapdir", "revise-memory-corrupt",
       lambda b, t: ["revise", (lambda m: write(m / "memory.npz", "x") and m)(map_copy(b, t)), map_poses(b), *Q],
       "memory"),
-    C("mapdir", "revise-delta-missing",
-      lambda b, t: ["revise", (lambda m: (m / "deltas" / "000001.npz").unlink() or m)(map_copy(b, t)),
-                    poses_file(t, ident_lines(4)), *Q], "delta"),
+    C("mapdir", "revise-delta-damaged",
+      lambda b, t: ["revise", (lambda m: _damage(m / "deltas" / "shard-000000.pvd", 100) or m)(map_copy(b, t)),
+                    poses_file(t, ident_lines(4)), *Q], "delta record"),
+    C("mapdir", "revise-delta-log-truncated",
+      lambda b, t: ["revise", (lambda m: _truncate_half(m / "deltas" / "shard-000000.pvd") or m)(map_copy(b, t)),
+                    poses_file(t, ident_lines(4)), *Q], "delta log ends before"),
+    C("mapdir", "resume-delta-log-truncated",
+      lambda b, t: ["map", "--resume", (lambda m: _truncate_half(m / "deltas" / "shard-000000.pvd") or m)(
+          map_copy(b, t)), *Q], "delta log ends before"),
     C("mapdir", "resume-format-version-99",
       lambda b, t: ["map", "--resume", map_with_config(b, t, format_version=99), *Q], "format_version"),
     C("mapdir", "resume-not-a-map", lambda b, t: ["map", "--resume", nonempty(t), *Q], "config.json"),
@@ -822,10 +841,13 @@ def test_killed_run_leftovers_are_cleaned(capsys, base, tmp_path):
             m / "deltas" / ".000000.k9.npz"]
     for p in junk:
         p.write_bytes(b"half")
-    (m / "deltas" / "000003.npz.new").write_bytes(b"half")  # a staged delta of a killed revise, not committed
+    shard = m / "deltas" / "shard-000000.pvd"
+    size = shard.stat().st_size
+    with open(shard, "ab") as f:  # a record of a killed revise, torn and never committed
+        f.write(b"PVD1\x01" + b"\x00" * 50)
     code, out, err = run_cli(capsys, ["revise", m, m / "poses.txt", "--quiet"])
     assert code == 0, err
-    assert not any(p.exists() for p in junk) and not (m / "deltas" / "000003.npz.new").exists()
+    assert not any(p.exists() for p in junk) and shard.stat().st_size == size
     for p in junk[:2]:
         p.write_bytes(b"half")
     code, out, err = run_cli(capsys, ["map", "--resume", m, "--quiet"])
