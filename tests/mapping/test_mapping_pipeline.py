@@ -261,3 +261,100 @@ def test_mapper_refuses_a_frame_beyond_the_reach_of_its_origin():
     with pytest.raises(PanovoccError, match="frame 1: camera at .* reach"):
         m.integrate(Frame(rgb, depth, far, ErpCamera(32, 16), index=1))
     assert m.frame_ids == [0]
+
+
+def test_sharded_log_reads_back_exactly_and_checkpoints_do_not_rewrite_the_memory(room_seq, tmp_path, monkeypatch):
+    """With small shards a map's deltas span several files and read back bit for bit; a checkpoint writes
+    only a journal entry (no memory.npz, no poses.txt rewrite), and the folder's bytes do not depend on
+    the checkpoint schedule."""
+    from panovocc_cli.io import mapstore
+    from panovocc_cli.mapping import Mapper
+
+    full = tmp_path / "full"
+    run_map(_cfg(room_seq, full), progress=False)
+    monkeypatch.setattr(mapstore, "SHARD_BYTES", 1)  # every record starts a shard of its own
+    writes = []
+    real = mapstore.write_memory
+    monkeypatch.setattr(mapstore, "write_memory", lambda *a, **k: (writes.append(a[0]), real(*a, **k))[1])
+    small = tmp_path / "small"
+    run_map(dataclasses_replace(_cfg(room_seq, small), checkpoint_every=1), progress=False)
+    assert len(writes) == 1  # the final save only: the N checkpoints were journal entries
+    assert len(mapstore.shard_ids(small)) == N and len(mapstore.shard_ids(full)) == 1
+    assert _bytes(small) == _bytes(full)
+    a, b = Mapper.load(small), Mapper.load(full)
+    for i in range(N):
+        for pa, pb in zip(a._rpu.store.get(i).parts, b._rpu.store.get(i).parts, strict=True):
+            np.testing.assert_array_equal(pa.keys, pb.keys)
+            for k in pa.channels:
+                np.testing.assert_array_equal(pa.channels[k], pb.channels[k])
+    a.close()
+    b.close()
+    assert (small / "deltas" / "commits.pvj").read_bytes().__len__() == 24  # one entry after the save
+
+
+def dataclasses_replace(cfg, **kw):
+    import dataclasses
+
+    return dataclasses.replace(cfg, **kw)
+
+
+def test_a_failed_delta_write_stops_with_one_line_and_resumes_exactly(room_seq, tmp_path, monkeypatch):
+    """Disk full while frame 3's delta is written: the memory drops that frame again (memory and store
+    agree), the run stops with one line, and --resume gives the bytes of an uninterrupted run."""
+    import errno
+
+    from panovocc_cli.io import mapstore
+
+    full = tmp_path / "full"
+    run_map(_cfg(room_seq, full), progress=False)
+    real = mapstore.DeltaLog.append
+
+    def append(self, kind, fid, payload):
+        if fid == 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, kind, fid, payload)
+
+    monkeypatch.setattr(mapstore.DeltaLog, "append", append)
+    out = tmp_path / "m"
+    with pytest.raises(PanovoccError, match=r"cannot write the delta of frame 3 \(No space left on device\)") as e:
+        run_map(_cfg(room_seq, out), progress=False)
+    assert "\n" not in str(e.value) and "resumable" in str(e.value)
+    monkeypatch.setattr(mapstore.DeltaLog, "append", real)
+    run_map(resume_out=out, progress=False)
+    assert _bytes(out) == _bytes(full)
+
+
+def test_memory_and_store_agree_after_a_failed_write(room_seq, tmp_path, monkeypatch):
+    import errno
+
+    from panovocc_cli.io import mapstore
+    from panovocc_cli.mapping import Mapper, MapperConfig
+    from panovocc_cli.mapping.pipeline import SequenceFrames
+    from panovocc_cli.io.sequence import Sequence
+
+    frames = SequenceFrames(Sequence(room_seq))
+    cfg = MapperConfig(geometry=GeometryParams(stride=1))
+    m = Mapper(cfg, folder=tmp_path / "m", frame_source=frames)
+    ref = Mapper(cfg)
+    for i in range(2):
+        m.integrate(frames(i))
+        ref.integrate(frames(i))
+    real = mapstore.DeltaLog.append
+    monkeypatch.setattr(mapstore.DeltaLog, "append",
+                        lambda self, *a: (_ for _ in ()).throw(OSError(errno.EROFS, "Read-only file system")))
+    m.integrate(frames(2))  # its write fails on the writer thread
+    with pytest.raises(PanovoccError, match="frame 2.*Read-only"):
+        m.checkpoint()
+    monkeypatch.setattr(mapstore.DeltaLog, "append", real)
+    assert m.frame_ids == [0, 1]
+    a, b = m.memory.to_arrays(), ref.memory.to_arrays()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    m.integrate(frames(2))
+    ref.integrate(frames(2))
+    m.save()
+    m.close()
+    back = Mapper.load(tmp_path / "m")
+    a, b = back.memory.to_arrays(), ref.memory.to_arrays()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
