@@ -5,7 +5,8 @@ the delta store's size on disk, optionally with the peak memory of the run from 
     python scripts/map_scale.py work/pan-holo/map --time-log work/pan-holo/map.time
 
 Prints one JSON object: frames, occupied voxels (prediction.npz), the voxel memory the mapper keeps in RAM
-(``Mapper.load``: its hashed blocks' data, block keys and hash table, in bytes, and per occupied voxel),
+(``Mapper.load``, ``VoxelMemory.nbytes``: geometry blocks, semantic pages and rows, hash table; per
+allocated voxel and per semantic row),
 the memory file and the delta store on disk (bytes; per frame), and from the time log the peak resident
 memory of the whole run and it per occupied voxel.
 """
@@ -34,14 +35,17 @@ def main() -> None:
     g = read_grid(args.map / "prediction.npz")
     occ = int(((g.labels > 0) & (g.labels < 255)).sum())
     m = Mapper.load(args.map).memory
-    parts = [getattr(m, k) for k in ("_data", "_block_keys", "_table_keys", "_table_slots") if hasattr(m, k)]
-    used = m.n_blocks * m._data[0].nbytes if hasattr(m, "_data") else 0
-    mem = int(sum(np.asarray(a).nbytes for a in parts))
+    b = m.nbytes()  # what the memory holds: geometry blocks, sparse semantic pages and rows, hash table
+    mem = int(sum(b.values()))
+    nonzero = len(m.nonzero()[0])
     deltas = [p for p in (args.map / DELTAS_DIR).rglob("*") if p.is_file()]
     dbytes = sum(p.stat().st_size for p in deltas)
-    out = {"frames": frames, "occupied_voxels": occ, "blocks": int(m.n_blocks), "ram_memory_bytes": mem,
+    out = {"frames": frames, "occupied_voxels": occ, "nonzero_voxels": nonzero, "blocks": int(m.n_blocks),
+           "allocated_voxels": int(m.allocated_voxels), "semantic_rows": int(m.n_rows),
+           "ram_memory_bytes": mem, "ram_bytes": b,
+           "geometry_bytes_per_allocated_voxel": b["dense"] / max(m.allocated_voxels, 1),
+           "semantic_bytes_per_row": (b["rows"] + b["pages"]) / m.n_rows if m.n_rows else None,
            "ram_memory_bytes_per_occupied_voxel": mem / occ if occ else None,
-           "ram_blocks_in_use_bytes_per_occupied_voxel": used / occ if occ else None,
            "memory_file_bytes": (args.map / MEMORY_NAME).stat().st_size, "delta_files": len(deltas),
            "delta_store_bytes": dbytes, "delta_store_mb_per_frame": dbytes / 1e6 / max(frames, 1)}
     if args.time_log is not None:

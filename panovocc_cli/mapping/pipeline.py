@@ -287,8 +287,9 @@ def _writer_lock(out: Path):
     with FolderLock(out):
         clean_temporaries(out, _OUTPUTS)
         if (out / mapstore.DELTAS_DIR).is_dir():
-            for tmp in (out / mapstore.DELTAS_DIR).glob(".*.npz"):
-                tmp.unlink(missing_ok=True)
+            for pattern in (".*.npz", ".*.pvj"):  # snapshot and journal temporaries (legacy: delta files)
+                for tmp in (out / mapstore.DELTAS_DIR).glob(pattern):
+                    tmp.unlink(missing_ok=True)
         yield
 
 
