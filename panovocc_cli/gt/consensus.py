@@ -1,0 +1,512 @@
+"""Multi-view consensus occupancy of the lifted ground truth (``gt --from-sequence``; docs/gt.md).
+
+An offline builder has every frame at once, so it does not decide a voxel from the frames seen so far:
+it first gathers where every frame puts each surface, takes the consensus, and only then asks every ray
+whether it agrees. Written from the ERP geometry and the lattice alone (no code of the mapper: the
+benchmark must not be built by the method it ranks). On the global lattice of voxel size h:
+
+1. **Surface positions along the normal (pass 1, every frame).** Each valid depth pixel is lifted to the
+   world (``T_world_cam`` · ray · radial depth) and given the dominant axis ``a`` of its surface normal
+   (the cross product of the image tangents ``NORMAL_STEP`` pixels either side, one-sided across a depth
+   jump). The point falls in the *column* of voxels along ``a`` through its other two voxel indices, at
+   a position counted in ``FINE`` bins a voxel (integer counts, and the points' offsets in fixed point:
+   sums that do not depend on the frames' order).
+2. **The consensus (robust statistics per column).** Along every column the counts are smoothed by a
+   triangle one voxel either side; a bin is a *surface mode* when it is the largest within one voxel
+   either side (the first of a plateau) and at least ``min_points`` points lie within one voxel of it.
+   The surface's position is the mean of those points (a trimmed mean: the window is the mode ± one
+   voxel, so one frame's outliers and the noise tails farther off do not move it), and the surface voxel
+   is the one that position falls in (a position on a voxel face goes to the voxel above it, as the mesh
+   ground truth does). One column gives one voxel per surface, however thick the noise spreads the points.
+3. **Every ray's verdict (pass 2, every frame).** A point *supports* the surface whose consensus position
+   is nearest along that surface's axis within ``tol(r) = surface_tol + surface_tol_r2 r²`` (r its range,
+   metres): range noise grows with range. A ray (one every ``max(1, W // 512)`` pixels on both axes) is
+   walked from the camera centre to its point's voxel; every voxel it crosses is *seen*; a surface voxel
+   it crosses *sees through* when the ray crosses that surface's plane inside the voxel and its point lies
+   more than ``tol(r)`` behind the plane. A surface voxel is *occupied* when at least ``min_frames``
+   frames support it and the supporting frames are at least ``min_hit_ratio`` of the frames supporting or
+   seeing through it: free space carved by every ray overrides a mode that noise or one frame made.
+4. **Labels.** As before: the annotated frames vote (one vote per frame per voxel, split over its pixels'
+   classes) — each pixel in the surface voxel its point supports, so a noisy point still votes where its
+   surface is; the nearest-label transfer within ``label_radius`` (:func:`.lifted.label_grid`).
+
+Every frame contributes to the same integer sums whatever the order, so the trajectory run backwards
+gives the same grid, byte for byte.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..config import GT_BOUNDARY_EPS
+from ..errors import PanovoccError
+from ..geometry.erp import cam_point, trig_tables
+from ..grid import Grid
+from .lifted import carve_stride, frame_votes, label_grid
+
+FINE = 4  # position bins a voxel along a column
+NORMAL_STEP = 2  # pixels either side for the image tangents of a point's normal
+JUMP_REL = 0.25  # a neighbour farther than this fraction of the range is across a depth jump
+OFFSET_UNITS = 1024  # fixed-point units of a point's offset within its bin
+WINDOW = FINE - 1  # bins either side of a mode whose points give its position (the trimmed mean)
+POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
+KERNEL_R2 = 1.0  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
+# (3 axes x FINE bins x (int32 count + int64 offset + int64 density)) + 3 float64 surface positions
+# + 6 int32 counts/stamps + bools
+BYTES_PER_VOXEL = 3 * FINE * 20 + 3 * 8 + 6 * 4 + 2
+
+
+@nb.njit(cache=True)
+def _world_points(depth, T, max_range, P, ok):
+    """World point of every pixel into ``P`` (H, W, 3) and validity into ``ok`` (H, W)."""
+    H, W = depth.shape
+    sphi, cphi, sth, cth = trig_tables(H, W)
+    for v in range(H):
+        for u in range(W):
+            r = depth[v, u]
+            good = r > 0.0 and np.isfinite(r) and not (max_range > 0.0 and r > max_range)
+            ok[v, u] = good
+            if not good:
+                continue
+            x, y, z = cam_point(r, sphi[v], cphi[v], sth[u], cth[u])
+            for a in range(3):
+                P[v, u, a] = T[a, 0] * x + T[a, 1] * y + T[a, 2] * z + T[a, 3]
+
+
+@nb.njit(cache=True, inline="always")
+def _tangent(P, ok, depth, v, u, v1, u1, v2, u2, out):
+    """Tangent at (v, u) from neighbours (v1, u1) / (v2, u2) on either side; one-sided across a jump.
+    Returns False when neither neighbour is on the same surface."""
+    r = depth[v, u]
+    g1 = ok[v1, u1] and abs(depth[v1, u1] - r) <= JUMP_REL * r
+    g2 = ok[v2, u2] and abs(depth[v2, u2] - r) <= JUMP_REL * r
+    if g1 and g2:
+        for a in range(3):
+            out[a] = P[v2, u2, a] - P[v1, u1, a]
+    elif g2:
+        for a in range(3):
+            out[a] = P[v2, u2, a] - P[v, u, a]
+    elif g1:
+        for a in range(3):
+            out[a] = P[v, u, a] - P[v1, u1, a]
+    else:
+        return False
+    return True
+
+
+@nb.njit(cache=True)
+def _normal_axes(P, ok, depth, step, axis):
+    """Dominant axis (0, 1, 2) of each pixel's surface normal into ``axis`` (H, W) int8; -1: none."""
+    H, W = depth.shape
+    tu = np.empty(3)
+    tv = np.empty(3)
+    for v in range(H):
+        for u in range(W):
+            axis[v, u] = -1
+            if not ok[v, u]:
+                continue
+            if not _tangent(P, ok, depth, v, u, v, (u - step) % W, v, (u + step) % W, tu):
+                continue
+            if not _tangent(P, ok, depth, v, u, max(v - step, 0), u, min(v + step, H - 1), u, tv):
+                continue
+            nx = tu[1] * tv[2] - tu[2] * tv[1]
+            ny = tu[2] * tv[0] - tu[0] * tv[2]
+            nz = tu[0] * tv[1] - tu[1] * tv[0]
+            ax, ay, az = abs(nx), abs(ny), abs(nz)
+            if ax + ay + az <= 0.0:
+                continue
+            if ax >= ay and ax >= az:
+                axis[v, u] = 0
+            elif ay >= az:
+                axis[v, u] = 1
+            else:
+                axis[v, u] = 2
+
+
+@nb.njit(cache=True, inline="always")
+def _deposit(cnt, off, den, q, loc, n_bins, stride, f, fb, half):
+    """One point at fine position ``f`` (bin ``fb``, local ``loc``) of a column whose bin ``loc`` is ``q``."""
+    cnt[q] += 1
+    off[q] += int((f - fb) * OFFSET_UNITS)
+    m = (half + 1) * (half + 1)
+    for j in range(-half, half + 1):
+        b = loc + j
+        if 0 <= b < n_bins:
+            den[q + j * stride] += (POINT_MASS * (half + 1 - abs(j))) // m
+
+
+@nb.njit(cache=True)
+def _density_kernel(P, ok, axis, depth, h, i0, shape, k2, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
+    """Pass 1: each point with a normal axis counted in its column's fine bin and spread over the bins of
+    its range-dependent triangle (module docstring, 1)."""
+    H, W = ok.shape
+    idx = np.empty(3, np.int64)
+    for v in range(H):
+        for u in range(W):
+            a = axis[v, u]
+            if a < 0:
+                continue
+            inside = True
+            for b in range(3):
+                idx[b] = int(np.floor(P[v, u, b] / h)) - i0[b]
+                if idx[b] < 0 or idx[b] >= shape[b]:
+                    inside = False
+            if not inside:
+                continue
+            f = P[v, u, a] / h * FINE
+            fb = int(np.floor(f))
+            loc = fb - i0[a] * FINE
+            if loc < 0 or loc >= shape[a] * FINE:
+                continue
+            r = depth[v, u]
+            half = max(FINE // 2, int(k2 * r * r / h * FINE + 0.5))
+            half = min(half, 4 * FINE)
+            n_bins = shape[a] * FINE
+            if a == 0:
+                q = (loc * shape[1] + idx[1]) * shape[2] + idx[2]
+                _deposit(cnt0, off0, den0, q, loc, n_bins, shape[1] * shape[2], f, fb, half)
+            elif a == 1:
+                q = (idx[0] * (shape[1] * FINE) + loc) * shape[2] + idx[2]
+                _deposit(cnt1, off1, den1, q, loc, n_bins, shape[2], f, fb, half)
+            else:
+                q = (idx[0] * shape[1] + idx[1]) * (shape[2] * FINE) + loc
+                _deposit(cnt2, off2, den2, q, loc, n_bins, 1, f, fb, half)
+
+
+@nb.njit(cache=True, inline="always")
+def _vox(x, h, i0, b):
+    return int(np.floor(x / h)) - i0[b]
+
+
+@nb.njit(cache=True)
+def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S1, S2, hit_frames, hit_points,
+                     hit_stamp, see_frames, see_stamp, seen, pix_lin):
+    """Pass 2: support, seen-through and seen voxels of one frame (module docstring, 3); ``pix_lin``
+    (H, W) int64 receives the surface voxel each pixel supports (-1: none)."""
+    H, W = depth.shape
+    ox, oy, oz = T[0, 3], T[1, 3], T[2, 3]
+    o = np.array([ox, oy, oz])
+    p = np.empty(3)
+    idx = np.empty(3, np.int64)
+    for v in range(H):
+        for u in range(W):
+            pix_lin[v, u] = -1
+            if not ok[v, u]:
+                continue
+            r = depth[v, u]
+            tol = tol0 + tol2 * r * r
+            for b in range(3):
+                p[b] = P[v, u, b]
+                idx[b] = _vox(p[b], h, i0, b)
+            # support: the nearest consensus surface along its axis within tol
+            best = tol
+            bq = -1
+            for a in range(3):
+                b1, b2 = (a + 1) % 3, (a + 2) % 3
+                if idx[b1] < 0 or idx[b1] >= shape[b1] or idx[b2] < 0 or idx[b2] >= shape[b2]:
+                    continue
+                lo = max(_vox(p[a] - tol, h, i0, a), 0)
+                hi = min(_vox(p[a] + tol, h, i0, a), shape[a] - 1)
+                for k in range(lo, hi + 1):
+                    idx2 = idx.copy()
+                    idx2[a] = k
+                    q = (idx2[0] * shape[1] + idx2[1]) * shape[2] + idx2[2]
+                    s = S0[q] if a == 0 else (S1[q] if a == 1 else S2[q])
+                    if np.isfinite(s):
+                        d = abs(p[a] - s)
+                        if d <= best:
+                            if d < best or bq < 0 or q < bq:
+                                best = d
+                                bq = q
+            if bq >= 0:
+                pix_lin[v, u] = bq
+                hit_points[bq] += 1
+                if hit_stamp[bq] != f:
+                    hit_stamp[bq] = f
+                    hit_frames[bq] += 1
+            if v % stride != 0 or u % stride != 0:
+                continue
+            # Amanatides-Woo walk in voxel units from the camera centre to the point's voxel (excluded)
+            gx, gy, gz = ox / h, oy / h, oz / h
+            px, py, pz = p[0] / h, p[1] / h, p[2] / h
+            cx, cy, cz = int(np.floor(gx)), int(np.floor(gy)), int(np.floor(gz))
+            ex, ey, ez = int(np.floor(px)), int(np.floor(py)), int(np.floor(pz))
+            n = abs(ex - cx) + abs(ey - cy) + abs(ez - cz)
+            dx, dy, dz = px - gx, py - gy, pz - gz
+            sx = 1 if dx > 0 else -1
+            sy = 1 if dy > 0 else -1
+            sz = 1 if dz > 0 else -1
+            tx = ((cx + (1 if dx > 0 else 0)) - gx) / dx if dx != 0 else np.inf
+            ty = ((cy + (1 if dy > 0 else 0)) - gy) / dy if dy != 0 else np.inf
+            tz = ((cz + (1 if dz > 0 else 0)) - gz) / dz if dz != 0 else np.inf
+            ddx = abs(1.0 / dx) if dx != 0 else np.inf
+            ddy = abs(1.0 / dy) if dy != 0 else np.inf
+            ddz = abs(1.0 / dz) if dz != 0 else np.inf
+            for _ in range(n):
+                if cx == ex and cy == ey and cz == ez:
+                    break
+                lx, ly, lz = cx - i0[0], cy - i0[1], cz - i0[2]
+                if 0 <= lx < shape[0] and 0 <= ly < shape[1] and 0 <= lz < shape[2]:
+                    q = (lx * shape[1] + ly) * shape[2] + lz
+                    seen[q] = True
+                    for a in range(3):
+                        s = S0[q] if a == 0 else (S1[q] if a == 1 else S2[q])
+                        if not np.isfinite(s) or see_stamp[q] == f:
+                            continue
+                        if (o[a] - s) * (p[a] - s) >= 0.0 or abs(p[a] - s) <= tol:
+                            continue  # the point is on the camera's side of the plane, or within tol of it
+                        w = (s - o[a]) / (p[a] - o[a])  # where the ray crosses the plane: inside this voxel?
+                        b1, b2 = (a + 1) % 3, (a + 2) % 3
+                        c1 = o[b1] + w * (p[b1] - o[b1])
+                        c2 = o[b2] + w * (p[b2] - o[b2])
+                        l1 = lx if b1 == 0 else (ly if b1 == 1 else lz)
+                        l2 = lx if b2 == 0 else (ly if b2 == 1 else lz)
+                        if _vox(c1, h, i0, b1) == l1 and _vox(c2, h, i0, b2) == l2:
+                            see_stamp[q] = f
+                            see_frames[q] += 1
+                if tx <= ty and tx <= tz:
+                    cx += sx
+                    tx += ddx
+                elif ty <= tz:
+                    cy += sy
+                    ty += ddy
+                else:
+                    cz += sz
+                    tz += ddz
+
+
+def _window_sum(x: np.ndarray, axis: int, half: int) -> np.ndarray:
+    """Sum of ``x`` (as int64) over ``[b - half, b + half]`` along ``axis`` (zero outside)."""
+    pad = [(0, 0)] * x.ndim
+    pad[axis] = (half + 1, half)
+    c = np.cumsum(np.pad(x.astype(np.int64), pad), axis=axis)
+    n = x.shape[axis]
+    return np.take(c, np.arange(2 * half + 1, n + 2 * half + 1), axis=axis) - np.take(c, np.arange(n), axis=axis)
+
+
+def _shifted(x: np.ndarray, off) -> np.ndarray:
+    """``y[i] = x[i + off]`` (NaN where ``i + off`` is outside)."""
+    y = np.full_like(x, np.nan)
+    dst, src = [], []
+    for o in off:
+        dst.append(slice(None, -o) if o > 0 else slice(-o, None))
+        src.append(slice(o, None) if o > 0 else slice(None, o if o < 0 else None))
+    y[tuple(dst)] = x[tuple(src)]
+    return y
+
+
+def surface_spans(S: np.ndarray, axis: int, h: float, slope_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where a column's surface, sloping toward its neighbours, also crosses the voxel below / above its own.
+
+    The surface of a mode at position t passes the boundary with a neighbouring column (one voxel along
+    either other axis) at the midpoint with the neighbour's mode t' when ``slope_min h <= |t' - t| <= h``
+    (the same surface, sloping); the voxels between those boundary points along ``axis`` are crossed.
+
+    Parameters
+    ----------
+    S : box-shaped float64, metres: the position of each voxel's mode along ``axis`` (NaN: none)
+
+    Returns
+    -------
+    below, above : box-shaped bool, the voxel at index - 1 / + 1 along ``axis`` is crossed too
+    """
+    lo, hi = S.copy(), S.copy()
+    for b in range(3):
+        if b == axis:
+            continue
+        for step in (1, -1):
+            for dk in (-1, 0, 1):
+                off = [0, 0, 0]
+                off[b], off[axis] = step, dk
+                nb = _shifted(S, off)
+                with np.errstate(invalid="ignore"):
+                    d = np.abs(nb - S)
+                    same = (d <= h) & (d >= slope_min * h)
+                mid = np.where(same, 0.5 * (S + nb), S)
+                lo = np.fmin(lo, mid)
+                hi = np.fmax(hi, mid)
+    k = np.floor(S / h + GT_BOUNDARY_EPS)
+    with np.errstate(invalid="ignore"):
+        return np.floor(lo / h + GT_BOUNDARY_EPS) < k, np.floor(hi / h + GT_BOUNDARY_EPS) > k
+
+
+def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, min_points: int):
+    """Surface modes of the columns of one axis (module docstring, 2).
+
+    Parameters
+    ----------
+    cnt, off, den : point counts, summed fixed-point offsets and smoothed density per fine bin, shaped like
+        the box with ``FINE`` bins a voxel along ``axis``
+    min_points : points within the mode's window, at least
+
+    Returns
+    -------
+    bins : (m, 3) int64 fine-bin index of each mode (``axis`` in bins, the others in voxels)
+    pos : (m,) float64 the mode's position in fine-bin units of the box (trimmed mean of its window)
+    strength : (m,) int64 smoothed density at the mode
+    """
+    from scipy.ndimage import maximum_filter1d
+
+    c = cnt.astype(np.int64)
+    top = maximum_filter1d(den, size=2 * (FINE - 1) + 1, axis=axis, mode="constant", cval=0)
+    win = _window_sum(c, axis, WINDOW)
+    peak = (den == top) & (den > 0) & (win >= min_points)
+    prev = np.zeros_like(peak)  # the first of a plateau
+    sl_dst = [slice(None)] * 3
+    sl_src = [slice(None)] * 3
+    sl_dst[axis], sl_src[axis] = slice(1, None), slice(None, -1)
+    prev[tuple(sl_dst)] = peak[tuple(sl_src)]
+    peak &= ~prev
+    bins = np.argwhere(peak)
+    if not len(bins):
+        return bins, np.zeros(0), np.zeros(0, np.int64)
+    shape = [1, 1, 1]
+    shape[axis] = -1
+    centre = np.arange(c.shape[axis], dtype=np.int64).reshape(shape)
+    num = _window_sum(c * centre * OFFSET_UNITS + off.astype(np.int64), axis, WINDOW)
+    sel = tuple(bins.T)
+    pos = (num[sel] + 0.5 * win[sel]) / (win[sel] * float(OFFSET_UNITS))
+    return bins, pos, den[sel]
+
+
+class ConsensusLift:
+    """The consensus lifting on a fixed dense box of the global lattice (module docstring).
+
+    Feed every frame to :meth:`add_density`, call :meth:`settle`, then feed every frame again (with the
+    labels of the annotated ones) to :meth:`add_evidence`, and take :meth:`grid`.
+
+    Parameters
+    ----------
+    index0 : (3,) int, lattice index of the box's voxel [0, 0, 0]
+    shape : (3,) int, voxels per axis
+    voxel_size : h, metres
+    n_classes : number of label ids of the annotations (0 = unlabelled)
+    max_range : metres, depth beyond it is ignored (0: keep all)
+    min_points, min_frames, min_hit_ratio, surface_tol, surface_tol_r2 : the rules (module docstring)
+    """
+
+    def __init__(self, index0, shape, voxel_size: float, n_classes: int, max_range: float = 0.0, *,
+                 min_points: int, min_frames: int, min_hit_ratio: float, surface_tol: float, surface_tol_r2: float,
+                 slope_min: float = 0.0):
+        self.index0 = np.asarray(index0, dtype=np.int64).reshape(3)
+        self.shape = tuple(int(s) for s in shape)
+        self.h = float(voxel_size)
+        self.n_classes = int(n_classes)
+        self.max_range = float(max_range)
+        self.min_points, self.min_frames = int(min_points), int(min_frames)
+        self.min_hit_ratio = float(min_hit_ratio)
+        self.tol0, self.tol2 = float(surface_tol), float(surface_tol_r2)
+        self.slope_min = float(slope_min)
+        n = int(np.prod(self.shape))
+        self._cnt = [np.zeros(n * FINE, np.int32) for _ in range(3)]
+        self._off = [np.zeros(n * FINE, np.int64) for _ in range(3)]
+        self._den = [np.zeros(n * FINE, np.int64) for _ in range(3)]
+        self.surface: list[np.ndarray] | None = None
+        self.hit_frames = np.zeros(n, np.int32)
+        self.hit_points = np.zeros(n, np.int32)
+        self.see_frames = np.zeros(n, np.int32)
+        self.seen = np.zeros(n, bool)
+        self._hit_stamp = np.full(n, -1, np.int32)
+        self._see_stamp = np.full(n, -1, np.int32)
+        self._votes: list[tuple[np.ndarray, np.ndarray]] = []
+        self.frames = 0
+        self.evidence_frames = 0
+        self.annotated = 0
+        self.stats: dict[str, int] = {}
+
+    def _lift(self, depth, T):
+        depth = np.ascontiguousarray(depth, dtype=np.float32)
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        H, W = depth.shape
+        P = np.zeros((H, W, 3))
+        ok = np.zeros((H, W), bool)
+        _world_points(depth, T, self.max_range, P, ok)
+        return depth, T, P, ok
+
+    def add_density(self, depth: np.ndarray, T_world_cam: np.ndarray) -> None:
+        """Pass 1: one frame's points into the columns. depth (H, W) metres radial (0 invalid), T (4, 4)."""
+        if self.surface is not None:
+            raise PanovoccError("add_density after settle(): the consensus is already taken")
+        depth, T, P, ok = self._lift(depth, T_world_cam)
+        axis = np.empty(depth.shape, np.int8)
+        _normal_axes(P, ok, depth, NORMAL_STEP, axis)
+        c, o, d = self._cnt, self._off, self._den
+        _density_kernel(P, ok, axis, depth, self.h, self.index0, np.asarray(self.shape, np.int64), self.tol2 * KERNEL_R2,
+                        c[0], o[0], d[0], c[1], o[1], d[1], c[2], o[2], d[2])
+        self.frames += 1
+
+    def settle(self) -> None:
+        """Take the consensus: each column's surface modes and their voxels (module docstring, 2)."""
+        n = int(np.prod(self.shape))
+        self.surface = []
+        self.modes = 0
+        for a in range(3):
+            sh = list(self.shape)
+            sh[a] *= FINE
+            bins, pos, strength = column_modes(self._cnt[a].reshape(sh), self._off[a].reshape(sh),
+                                                self._den[a].reshape(sh), a, self.min_points)
+            S = np.full(n, np.nan)
+            if len(bins):
+                t = (self.index0[a] * FINE + pos) / FINE  # voxel units of the lattice
+                vox = bins.copy()
+                vox[:, a] = np.floor(t + GT_BOUNDARY_EPS).astype(np.int64) - self.index0[a]
+                inside = (vox[:, a] >= 0) & (vox[:, a] < self.shape[a])
+                vox, t, strength = vox[inside], t[inside], strength[inside]
+                lin = np.ravel_multi_index(tuple(vox.T), self.shape)
+                order = np.lexsort((lin, -strength))  # two modes in one voxel: the stronger (then the first)
+                lin, t = lin[order], t[order]
+                _, first = np.unique(lin, return_index=True)
+                S[lin[first]] = t[first] * self.h
+                self.modes += len(first)
+            self.surface.append(S)
+        self.spans = [surface_spans(S.reshape(self.shape), a, self.h, self.slope_min) for a in range(3)]
+        self._cnt = self._off = self._den = None  # the counts are no longer needed
+
+    def add_evidence(self, depth: np.ndarray, T_world_cam: np.ndarray, labels: np.ndarray | None = None) -> None:
+        """Pass 2: one frame's support, see-through and seen voxels; ``labels`` (H, W) class ids of an
+        annotated frame (0 = unlabelled) vote in the surface voxels their points support."""
+        if self.surface is None:
+            raise PanovoccError("add_evidence before settle(): take the consensus first")
+        depth, T, P, ok = self._lift(depth, T_world_cam)
+        H, W = depth.shape
+        pix = np.empty((H, W), np.int64)
+        S = self.surface
+        _evidence_kernel(depth, P, ok, T, self.h, self.index0, np.asarray(self.shape, np.int64),
+                         np.int32(self.evidence_frames), carve_stride(W), self.tol0, self.tol2, S[0], S[1], S[2],
+                         self.hit_frames, self.hit_points, self._hit_stamp, self.see_frames, self._see_stamp,
+                         self.seen, pix)
+        self.evidence_frames += 1
+        if labels is None:
+            return
+        lab = np.asarray(labels)
+        if lab.shape != depth.shape:
+            raise PanovoccError(f"labels {lab.shape} and depth {depth.shape} differ in size")
+        self._votes.append(frame_votes(pix, lab, self.n_classes))
+        self.annotated += 1
+
+    def occupied(self) -> np.ndarray:
+        """(n,) bool over the box: surface voxels the rays confirm (module docstring, 3)."""
+        if self.surface is None:
+            raise PanovoccError("occupied() before settle()")
+        cand = np.isfinite(self.surface[0]) | np.isfinite(self.surface[1]) | np.isfinite(self.surface[2])
+        hf = self.hit_frames.astype(np.int64)
+        ok = cand & (hf >= self.min_frames) & (hf >= self.min_hit_ratio * (hf + self.see_frames))
+        out = ok.reshape(self.shape).copy()
+        okr = ok.reshape(self.shape)
+        for a in range(3):  # a confirmed surface also holds the voxels its slope crosses in its column
+            has = okr & np.isfinite(self.surface[a].reshape(self.shape))
+            below, above = self.spans[a]
+            dst, src = [slice(None)] * 3, [slice(None)] * 3
+            dst[a], src[a] = slice(None, -1), slice(1, None)
+            out[tuple(dst)] |= (has & below)[tuple(src)]
+            out[tuple(src)] |= (has & above)[tuple(dst)]
+        return out.reshape(-1)
+
+    def grid(self, class_names: list[str], label_radius: float) -> Grid:
+        """The lifted ground truth: 0 seen free, 1..253 class, 254 occupied without class, 255 never observed."""
+        occ = self.occupied()
+        g, self.stats = label_grid(occ, self.seen & ~occ, self._votes, self.n_classes, class_names, label_radius,
+                                   self.index0, self.shape, self.h)
+        self.stats["modes"] = self.modes
+        return g
