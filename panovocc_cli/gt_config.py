@@ -27,8 +27,6 @@ DEFAULT_SURFACE_TOL = 0.08
 surface_tol + surface_tol_r2 r^2 of it along its normal axis (docs/gt.md)."""
 DEFAULT_SURFACE_TOL_R2 = 0.004
 """Metres per square metre of range: the range-dependent part of tol(r) (docs/gt.md)."""
-DEFAULT_SLOPE_MIN = 0.0
-"""Voxels: a mode fills its column's next voxel where its surface slopes (neighbour's mode this far or more)."""
 DEFAULT_LABEL_RADIUS = 0.16
 """Metres: an occupied voxel no annotation reached takes the label of the nearest labelled voxel this close
 (centre to centre, two voxels at 8 cm), else 254 (docs/gt.md)."""
@@ -55,9 +53,6 @@ class LiftParams:
                                      "farther behind it sees through it.")
     surface_tol_r2: float = option(DEFAULT_SURFACE_TOL_R2, min=0,
                                    help="Metres per square metre of range: the range-dependent part of that tolerance.")
-    slope_min: float = option(DEFAULT_SLOPE_MIN, min=0, max=1,
-                              help="Voxels: a surface mode also fills the voxel next to it in its column where the "
-                                   "neighbouring column's mode differs by at least this (and at most one voxel).")
     label_radius: float = option(DEFAULT_LABEL_RADIUS, min=0, max=MAX_VOXEL_SIZE * 10,
                                  help="Metres: an occupied voxel no annotation reached takes the nearest lifted "
                                       "label within this distance (voxel centres), else 254.")

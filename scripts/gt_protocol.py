@@ -28,7 +28,7 @@ import numpy as np
 
 SWEEP = ({}, {"min_points": 2}, {"min_points": 5}, {"min_frames": 1}, {"min_frames": 3}, {"min_hit_ratio": 0.0},
          {"min_hit_ratio": 0.1}, {"min_hit_ratio": 0.35}, {"surface_tol_r2": 0.002}, {"surface_tol_r2": 0.008},
-         {"surface_tol": 0.04}, {"slope_min": 1.0})
+         {"surface_tol": 0.04})
 
 
 def _row_md(cols, rows) -> str:
@@ -138,7 +138,7 @@ def main() -> None:
                                   c["iou_observed"], c["agree"]])
                 print(rule_rows[-1], flush=True)
     rules = (f"min points {lift0.min_points}, min frames {lift0.min_frames}, hit ratio {lift0.min_hit_ratio}, "
-             f"surface tol {lift0.surface_tol} m + {lift0.surface_tol_r2} m/m^2 r^2, slope min {lift0.slope_min}, "
+             f"surface tol {lift0.surface_tol} m + {lift0.surface_tol_r2} m/m^2 r^2, "
              f"label radius {lift0.label_radius} m")
     md = _write(out, "goals", ["seed", "depth", "lifted IoU", "mapper IoU", "lifted IoU obs", "mapper IoU obs",
                                "label agree", "goal"], goal_rows,

@@ -48,8 +48,10 @@ from .lifted import carve_stride, frame_votes, label_grid
 FINE = 4  # position bins a voxel along a column
 NORMAL_STEP = 2  # pixels either side for the image tangents of a point's normal
 JUMP_REL = 0.25  # a neighbour farther than this fraction of the range is across a depth jump
-OFFSET_UNITS = 1024  # fixed-point units of a point's offset within its bin
+OFFSET_UNITS = 1 << 20  # fixed-point units of a point's offset within its bin (rounded)
 WINDOW = FINE - 1  # bins either side of a mode whose points give its position (the trimmed mean)
+NMS = FINE - 1  # a mode is the largest density within this many bins either side
+DIP = 0.5  # two modes are one surface unless the density between them dips below this fraction of the smaller
 POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
 KERNEL_R2 = 1.0  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
 # (3 axes x FINE bins x (int32 count + int64 offset + int64 density)) + 3 float64 surface positions
@@ -75,60 +77,68 @@ def _world_points(depth, T, max_range, P, ok):
 
 
 @nb.njit(cache=True, inline="always")
-def _tangent(P, ok, depth, v, u, v1, u1, v2, u2, out):
-    """Tangent at (v, u) from neighbours (v1, u1) / (v2, u2) on either side; one-sided across a jump.
-    Returns False when neither neighbour is on the same surface."""
+def _side(P, ok, depth, v, u, v1, u1, sign, out):
+    """One-sided tangent ``sign * (P[v1, u1] - P[v, u])``; False across a depth jump or an invalid pixel."""
     r = depth[v, u]
-    g1 = ok[v1, u1] and abs(depth[v1, u1] - r) <= JUMP_REL * r
-    g2 = ok[v2, u2] and abs(depth[v2, u2] - r) <= JUMP_REL * r
-    if g1 and g2:
-        for a in range(3):
-            out[a] = P[v2, u2, a] - P[v1, u1, a]
-    elif g2:
-        for a in range(3):
-            out[a] = P[v2, u2, a] - P[v, u, a]
-    elif g1:
-        for a in range(3):
-            out[a] = P[v, u, a] - P[v1, u1, a]
-    else:
+    if (v1 == v and u1 == u) or not ok[v1, u1] or abs(depth[v1, u1] - r) > JUMP_REL * r:
         return False
+    for a in range(3):
+        out[a] = sign * (P[v1, u1, a] - P[v, u, a])
     return True
+
+
+@nb.njit(cache=True, inline="always")
+def _dominant(tu, tv):
+    nx = tu[1] * tv[2] - tu[2] * tv[1]
+    ny = tu[2] * tv[0] - tu[0] * tv[2]
+    nz = tu[0] * tv[1] - tu[1] * tv[0]
+    ax, ay, az = abs(nx), abs(ny), abs(nz)
+    if ax + ay + az <= 0.0:
+        return -1
+    if ax >= ay and ax >= az:
+        return 0
+    if ay >= az:
+        return 1
+    return 2
 
 
 @nb.njit(cache=True)
 def _normal_axes(P, ok, depth, step, axis):
-    """Dominant axis (0, 1, 2) of each pixel's surface normal into ``axis`` (H, W) int8; -1: none."""
+    """Dominant axes of each pixel's surface normal into ``axis`` (H, W) int8, a bit mask (bit a: axis a;
+    0: none): the axis of the normal of each pair of one-sided tangents (``step`` pixels along the row
+    either side x along the column either side) that does not cross a depth jump. One bit on a smooth
+    surface; near a crease (an edge, a corner) the pairs straddling it add the other surface's axis, and
+    the point goes into both columns: a surface that passes through a voxel by less than ``step`` pixels
+    still has points in its column."""
     H, W = depth.shape
-    tu = np.empty(3)
-    tv = np.empty(3)
+    tu = np.empty((2, 3))
+    tv = np.empty((2, 3))
+    gu = np.empty(2, np.bool_)
+    gv = np.empty(2, np.bool_)
     for v in range(H):
         for u in range(W):
-            axis[v, u] = -1
+            axis[v, u] = 0
             if not ok[v, u]:
                 continue
-            if not _tangent(P, ok, depth, v, u, v, (u - step) % W, v, (u + step) % W, tu):
-                continue
-            if not _tangent(P, ok, depth, v, u, max(v - step, 0), u, min(v + step, H - 1), u, tv):
-                continue
-            nx = tu[1] * tv[2] - tu[2] * tv[1]
-            ny = tu[2] * tv[0] - tu[0] * tv[2]
-            nz = tu[0] * tv[1] - tu[1] * tv[0]
-            ax, ay, az = abs(nx), abs(ny), abs(nz)
-            if ax + ay + az <= 0.0:
-                continue
-            if ax >= ay and ax >= az:
-                axis[v, u] = 0
-            elif ay >= az:
-                axis[v, u] = 1
-            else:
-                axis[v, u] = 2
+            gu[0] = _side(P, ok, depth, v, u, v, (u + step) % W, 1.0, tu[0])
+            gu[1] = _side(P, ok, depth, v, u, v, (u - step) % W, -1.0, tu[1])
+            gv[0] = _side(P, ok, depth, v, u, min(v + step, H - 1), u, 1.0, tv[0])
+            gv[1] = _side(P, ok, depth, v, u, max(v - step, 0), u, -1.0, tv[1])
+            mask = 0
+            for i in range(2):
+                for j in range(2):
+                    if gu[i] and gv[j]:
+                        d = _dominant(tu[i], tv[j])
+                        if d >= 0:
+                            mask |= 1 << d
+            axis[v, u] = mask
 
 
 @nb.njit(cache=True, inline="always")
 def _deposit(cnt, off, den, q, loc, n_bins, stride, f, fb, half):
     """One point at fine position ``f`` (bin ``fb``, local ``loc``) of a column whose bin ``loc`` is ``q``."""
     cnt[q] += 1
-    off[q] += int((f - fb) * OFFSET_UNITS)
+    off[q] += int((f - fb) * OFFSET_UNITS + 0.5)
     m = (half + 1) * (half + 1)
     for j in range(-half, half + 1):
         b = loc + j
@@ -144,39 +154,49 @@ def _density_kernel(P, ok, axis, depth, h, i0, shape, k2, cnt0, off0, den0, cnt1
     idx = np.empty(3, np.int64)
     for v in range(H):
         for u in range(W):
-            a = axis[v, u]
-            if a < 0:
+            mask = axis[v, u]
+            if mask == 0:
                 continue
             inside = True
             for b in range(3):
-                idx[b] = int(np.floor(P[v, u, b] / h)) - i0[b]
+                idx[b] = _vox(P[v, u, b], h, i0, b)
                 if idx[b] < 0 or idx[b] >= shape[b]:
                     inside = False
             if not inside:
                 continue
-            f = P[v, u, a] / h * FINE
-            fb = int(np.floor(f))
-            loc = fb - i0[a] * FINE
-            if loc < 0 or loc >= shape[a] * FINE:
-                continue
             r = depth[v, u]
             half = max(FINE // 2, int(k2 * r * r / h * FINE + 0.5))
             half = min(half, 4 * FINE)
-            n_bins = shape[a] * FINE
-            if a == 0:
-                q = (loc * shape[1] + idx[1]) * shape[2] + idx[2]
-                _deposit(cnt0, off0, den0, q, loc, n_bins, shape[1] * shape[2], f, fb, half)
-            elif a == 1:
-                q = (idx[0] * (shape[1] * FINE) + loc) * shape[2] + idx[2]
-                _deposit(cnt1, off1, den1, q, loc, n_bins, shape[2], f, fb, half)
-            else:
-                q = (idx[0] * shape[1] + idx[1]) * (shape[2] * FINE) + loc
-                _deposit(cnt2, off2, den2, q, loc, n_bins, 1, f, fb, half)
+            for a in range(3):
+                if mask & (1 << a):
+                    _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2,
+                                  off2, den2)
+
+
+@nb.njit(cache=True, inline="always")
+def _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
+    """Point (v, u) into its column along axis ``a``."""
+    f = P[v, u, a] / h * FINE
+    fb = int(np.floor(f))
+    loc = fb - i0[a] * FINE
+    if loc < 0 or loc >= shape[a] * FINE:
+        return
+    n_bins = shape[a] * FINE
+    if a == 0:
+        q = (loc * shape[1] + idx[1]) * shape[2] + idx[2]
+        _deposit(cnt0, off0, den0, q, loc, n_bins, shape[1] * shape[2], f, fb, half)
+    elif a == 1:
+        q = (idx[0] * (shape[1] * FINE) + loc) * shape[2] + idx[2]
+        _deposit(cnt1, off1, den1, q, loc, n_bins, shape[2], f, fb, half)
+    else:
+        q = (idx[0] * shape[1] + idx[1]) * (shape[2] * FINE) + loc
+        _deposit(cnt2, off2, den2, q, loc, n_bins, 1, f, fb, half)
 
 
 @nb.njit(cache=True, inline="always")
 def _vox(x, h, i0, b):
-    return int(np.floor(x / h)) - i0[b]
+    """Box index along axis b of coordinate x (metres); on a voxel face (within GT_BOUNDARY_EPS): the voxel above."""
+    return int(np.floor(x / h + GT_BOUNDARY_EPS)) - i0[b]
 
 
 @nb.njit(cache=True)
@@ -285,50 +305,69 @@ def _window_sum(x: np.ndarray, axis: int, half: int) -> np.ndarray:
     return np.take(c, np.arange(2 * half + 1, n + 2 * half + 1), axis=axis) - np.take(c, np.arange(n), axis=axis)
 
 
-def _shifted(x: np.ndarray, off) -> np.ndarray:
-    """``y[i] = x[i + off]`` (NaN where ``i + off`` is outside)."""
-    y = np.full_like(x, np.nan)
-    dst, src = [], []
-    for o in off:
-        dst.append(slice(None, -o) if o > 0 else slice(-o, None))
-        src.append(slice(o, None) if o > 0 else slice(None, o if o < 0 else None))
-    y[tuple(dst)] = x[tuple(src)]
-    return y
-
-
-def surface_spans(S: np.ndarray, axis: int, h: float, slope_min: float) -> tuple[np.ndarray, np.ndarray]:
-    """Where a column's surface, sloping toward its neighbours, also crosses the voxel below / above its own.
-
-    The surface of a mode at position t passes the boundary with a neighbouring column (one voxel along
-    either other axis) at the midpoint with the neighbour's mode t' when ``slope_min h <= |t' - t| <= h``
-    (the same surface, sloping); the voxels between those boundary points along ``axis`` are crossed.
-
-    Parameters
-    ----------
-    S : box-shaped float64, metres: the position of each voxel's mode along ``axis`` (NaN: none)
-
-    Returns
-    -------
-    below, above : box-shaped bool, the voxel at index - 1 / + 1 along ``axis`` is crossed too
-    """
-    lo, hi = S.copy(), S.copy()
-    for b in range(3):
-        if b == axis:
+@nb.njit(cache=True)
+def _row_modes(den, cnt, off, min_points, out_bin, out_pos, out_str):
+    """Modes of one column's bins (module docstring, 2); returns how many were written to ``out_*``."""
+    L = den.shape[0]
+    keep = np.empty(L, np.int64)
+    nk = 0
+    for b in range(L):
+        d = den[b]
+        if d <= 0:
             continue
-        for step in (1, -1):
-            for dk in (-1, 0, 1):
-                off = [0, 0, 0]
-                off[b], off[axis] = step, dk
-                nb = _shifted(S, off)
-                with np.errstate(invalid="ignore"):
-                    d = np.abs(nb - S)
-                    same = (d <= h) & (d >= slope_min * h)
-                mid = np.where(same, 0.5 * (S + nb), S)
-                lo = np.fmin(lo, mid)
-                hi = np.fmax(hi, mid)
-    k = np.floor(S / h + GT_BOUNDARY_EPS)
-    with np.errstate(invalid="ignore"):
-        return np.floor(lo / h + GT_BOUNDARY_EPS) < k, np.floor(hi / h + GT_BOUNDARY_EPS) > k
+        is_max = True
+        for j in range(max(b - NMS, 0), min(b + NMS + 1, L)):
+            if (j < b and den[j] >= d) or (j > b and den[j] > d):
+                is_max = False
+                break
+        if not is_max:
+            continue
+        if nk > 0:  # one blob with the previous mode (no dip between them): keep the stronger
+            p = keep[nk - 1]
+            dip = d
+            for j in range(p, b + 1):
+                dip = min(dip, den[j])
+            if dip >= DIP * min(d, den[p]):
+                if d > den[p]:
+                    keep[nk - 1] = b
+                continue
+        keep[nk] = b
+        nk += 1
+    m = 0
+    for i in range(nk):
+        b = keep[i]
+        c = 0
+        s = 0
+        for j in range(max(b - WINDOW, 0), min(b + WINDOW + 1, L)):
+            c += cnt[j]
+            s += cnt[j] * j * OFFSET_UNITS + off[j]
+        if c < min_points or c == 0:
+            continue
+        out_bin[m] = b
+        out_pos[m] = s / (c * float(OFFSET_UNITS))
+        out_str[m] = den[b]
+        m += 1
+    return m
+
+
+@nb.njit(cache=True)
+def _all_modes(den, cnt, off, min_points):
+    R, L = den.shape
+    rows = []
+    bins = []
+    pos = []
+    strength = []
+    ob = np.empty(L, np.int64)
+    op = np.empty(L)
+    os_ = np.empty(L, np.int64)
+    for r in range(R):
+        m = _row_modes(den[r], cnt[r], off[r], min_points, ob, op, os_)
+        for i in range(m):
+            rows.append(r)
+            bins.append(ob[i])
+            pos.append(op[i])
+            strength.append(os_[i])
+    return np.array(rows, np.int64), np.array(bins, np.int64), np.array(pos), np.array(strength, np.int64)
 
 
 def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, min_points: int):
@@ -346,28 +385,12 @@ def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, m
     pos : (m,) float64 the mode's position in fine-bin units of the box (trimmed mean of its window)
     strength : (m,) int64 smoothed density at the mode
     """
-    from scipy.ndimage import maximum_filter1d
-
-    c = cnt.astype(np.int64)
-    top = maximum_filter1d(den, size=2 * (FINE - 1) + 1, axis=axis, mode="constant", cval=0)
-    win = _window_sum(c, axis, WINDOW)
-    peak = (den == top) & (den > 0) & (win >= min_points)
-    prev = np.zeros_like(peak)  # the first of a plateau
-    sl_dst = [slice(None)] * 3
-    sl_src = [slice(None)] * 3
-    sl_dst[axis], sl_src[axis] = slice(1, None), slice(None, -1)
-    prev[tuple(sl_dst)] = peak[tuple(sl_src)]
-    peak &= ~prev
-    bins = np.argwhere(peak)
-    if not len(bins):
-        return bins, np.zeros(0), np.zeros(0, np.int64)
-    shape = [1, 1, 1]
-    shape[axis] = -1
-    centre = np.arange(c.shape[axis], dtype=np.int64).reshape(shape)
-    num = _window_sum(c * centre * OFFSET_UNITS + off.astype(np.int64), axis, WINDOW)
-    sel = tuple(bins.T)
-    pos = (num[sel] + 0.5 * win[sel]) / (win[sel] * float(OFFSET_UNITS))
-    return bins, pos, den[sel]
+    sh = np.moveaxis(np.empty(cnt.shape, np.int8), axis, -1).shape
+    rows, b, pos, strength = _all_modes(*(np.ascontiguousarray(np.moveaxis(x, axis, -1)).reshape(-1, sh[-1])
+                                          for x in (den, cnt, off)), int(min_points))
+    other = np.stack(np.unravel_index(rows, sh[:-1]), 1) if len(rows) else np.zeros((0, 2), np.int64)
+    bins = np.insert(other, axis, b, axis=1)
+    return bins, pos, strength
 
 
 class ConsensusLift:
@@ -387,8 +410,7 @@ class ConsensusLift:
     """
 
     def __init__(self, index0, shape, voxel_size: float, n_classes: int, max_range: float = 0.0, *,
-                 min_points: int, min_frames: int, min_hit_ratio: float, surface_tol: float, surface_tol_r2: float,
-                 slope_min: float = 0.0):
+                 min_points: int, min_frames: int, min_hit_ratio: float, surface_tol: float, surface_tol_r2: float):
         self.index0 = np.asarray(index0, dtype=np.int64).reshape(3)
         self.shape = tuple(int(s) for s in shape)
         self.h = float(voxel_size)
@@ -397,7 +419,6 @@ class ConsensusLift:
         self.min_points, self.min_frames = int(min_points), int(min_frames)
         self.min_hit_ratio = float(min_hit_ratio)
         self.tol0, self.tol2 = float(surface_tol), float(surface_tol_r2)
-        self.slope_min = float(slope_min)
         n = int(np.prod(self.shape))
         self._cnt = [np.zeros(n * FINE, np.int32) for _ in range(3)]
         self._off = [np.zeros(n * FINE, np.int64) for _ in range(3)]
@@ -460,7 +481,6 @@ class ConsensusLift:
                 S[lin[first]] = t[first] * self.h
                 self.modes += len(first)
             self.surface.append(S)
-        self.spans = [surface_spans(S.reshape(self.shape), a, self.h, self.slope_min) for a in range(3)]
         self._cnt = self._off = self._den = None  # the counts are no longer needed
 
     def add_evidence(self, depth: np.ndarray, T_world_cam: np.ndarray, labels: np.ndarray | None = None) -> None:
@@ -491,17 +511,7 @@ class ConsensusLift:
             raise PanovoccError("occupied() before settle()")
         cand = np.isfinite(self.surface[0]) | np.isfinite(self.surface[1]) | np.isfinite(self.surface[2])
         hf = self.hit_frames.astype(np.int64)
-        ok = cand & (hf >= self.min_frames) & (hf >= self.min_hit_ratio * (hf + self.see_frames))
-        out = ok.reshape(self.shape).copy()
-        okr = ok.reshape(self.shape)
-        for a in range(3):  # a confirmed surface also holds the voxels its slope crosses in its column
-            has = okr & np.isfinite(self.surface[a].reshape(self.shape))
-            below, above = self.spans[a]
-            dst, src = [slice(None)] * 3, [slice(None)] * 3
-            dst[a], src[a] = slice(None, -1), slice(1, None)
-            out[tuple(dst)] |= (has & below)[tuple(src)]
-            out[tuple(src)] |= (has & above)[tuple(dst)]
-        return out.reshape(-1)
+        return cand & (hf >= self.min_frames) & (hf >= self.min_hit_ratio * (hf + self.see_frames))
 
     def grid(self, class_names: list[str], label_radius: float) -> Grid:
         """The lifted ground truth: 0 seen free, 1..253 class, 254 occupied without class, 255 never observed."""

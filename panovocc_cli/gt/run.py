@@ -106,7 +106,7 @@ def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) ->
                             "--voxel-size or a --max-range", seq.root)
     acc = ConsensusLift(i0, shape, h, len(seq.meta.class_names), lift.max_range, min_points=lift.min_points,
                         min_frames=lift.min_frames, min_hit_ratio=lift.min_hit_ratio, surface_tol=lift.surface_tol,
-                        surface_tol_r2=lift.surface_tol_r2, slope_min=lift.slope_min)
+                        surface_tol_r2=lift.surface_tol_r2)
     for i in tqdm(range(n), desc="gt surfaces", unit="frame", disable=not progress):
         acc.add_density(seq.depth(i), seq.poses[i])
     acc.settle()
