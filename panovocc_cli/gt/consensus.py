@@ -47,13 +47,14 @@ from .lifted import carve_stride, frame_votes, label_grid
 
 FINE = 4  # position bins a voxel along a column
 NORMAL_STEP = 2  # pixels either side for the image tangents of a point's normal
+STRONG = 0.8  # a tangent pair's normal counts for its axis when |n_a| / |n| is at least this
 JUMP_REL = 0.25  # a neighbour farther than this fraction of the range is across a depth jump
 OFFSET_UNITS = 1 << 20  # fixed-point units of a point's offset within its bin (rounded)
 WINDOW = FINE - 1  # bins either side of a mode whose points give its position (the trimmed mean)
 NMS = FINE - 1  # a mode is the largest density within this many bins either side
 DIP = 0.5  # two modes are one surface unless the density between them dips below this fraction of the smaller
 POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
-KERNEL_R2 = 1.0  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
+KERNEL_R2 = 1.5  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
 # (3 axes x FINE bins x (int32 count + int64 offset + int64 density)) + 3 float64 surface positions
 # + 6 int32 counts/stamps + bools
 BYTES_PER_VOXEL = 3 * FINE * 20 + 3 * 8 + 6 * 4 + 2
@@ -89,25 +90,28 @@ def _side(P, ok, depth, v, u, v1, u1, sign, out):
 
 @nb.njit(cache=True, inline="always")
 def _dominant(tu, tv):
+    """Dominant axis of the normal ``tu x tv`` and its share ``|n_a| / |n|`` (-1, 0 when degenerate)."""
     nx = tu[1] * tv[2] - tu[2] * tv[1]
     ny = tu[2] * tv[0] - tu[0] * tv[2]
     nz = tu[0] * tv[1] - tu[1] * tv[0]
     ax, ay, az = abs(nx), abs(ny), abs(nz)
-    if ax + ay + az <= 0.0:
-        return -1
+    n = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if n <= 0.0:
+        return -1, 0.0
     if ax >= ay and ax >= az:
-        return 0
+        return 0, ax / n
     if ay >= az:
-        return 1
-    return 2
+        return 1, ay / n
+    return 2, az / n
 
 
 @nb.njit(cache=True)
 def _normal_axes(P, ok, depth, step, axis):
     """Dominant axes of each pixel's surface normal into ``axis`` (H, W) int8, a bit mask (bit a: axis a;
     0: none): the axis of the normal of each pair of one-sided tangents (``step`` pixels along the row
-    either side x along the column either side) that does not cross a depth jump. One bit on a smooth
-    surface; near a crease (an edge, a corner) the pairs straddling it add the other surface's axis, and
+    either side x along the column either side) that does not cross a depth jump, where that normal is
+    within 37 degrees of the axis (``STRONG``; else only the most dominant pair's axis). One bit on a
+    smooth surface; near a crease (an edge, a corner) the pairs straddling it add the other surface's axis, and
     the point goes into both columns: a surface that passes through a voxel by less than ``step`` pixels
     still has points in its column."""
     H, W = depth.shape
@@ -125,12 +129,17 @@ def _normal_axes(P, ok, depth, step, axis):
             gv[0] = _side(P, ok, depth, v, u, min(v + step, H - 1), u, 1.0, tv[0])
             gv[1] = _side(P, ok, depth, v, u, max(v - step, 0), u, -1.0, tv[1])
             mask = 0
+            best, best_share = -1, 0.0
             for i in range(2):
                 for j in range(2):
                     if gu[i] and gv[j]:
-                        d = _dominant(tu[i], tv[j])
-                        if d >= 0:
+                        d, share = _dominant(tu[i], tv[j])
+                        if d >= 0 and share >= STRONG:
                             mask |= 1 << d
+                        if d >= 0 and share > best_share:
+                            best, best_share = d, share
+            if mask == 0 and best >= 0:
+                mask = 1 << best
             axis[v, u] = mask
 
 
