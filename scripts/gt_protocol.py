@@ -85,7 +85,7 @@ def _mapper(seq_path: Path, out: Path):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path)
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
+    ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2, 3])
     ap.add_argument("--sweep-seeds", type=int, nargs="*", default=[])
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--frames", type=int, default=60)
