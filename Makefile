@@ -17,7 +17,7 @@ help:
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
 	@echo "make pan-holo  the embedded Pan-Holo split: a house, realistic depth, 300 frames, lifted ground truth"
-	@echo "make gt-protocol  lifted ground truth against mesh truth (2 seeds, clean and realistic depth)"
+	@echo "make gt-protocol  lifted ground truth and the mapper against mesh truth (4 seeds, clean and realistic depth)"
 	@echo "make reproduce-tables [SMALL=1]  the whole benchmark (tables, figures) into results/ (SMALL: results/small/)"
 
 # Debian libraries (open3d: libgl1 libegl1 libusb-1.0-0 libgomp1; headless pyrender: libosmesa6),
@@ -77,4 +77,4 @@ pan-holo: setup
 
 # The lifted ground truth measured against mesh truth (README "Pan-Holo360D", docs/gt.md).
 gt-protocol: setup
-	$(BIN)/python scripts/gt_protocol.py work/gt-protocol --seeds 0 1 --width 512
+	$(BIN)/python scripts/gt_protocol.py work/gt-protocol --seeds 0 1 2 3 --width 512

@@ -16,12 +16,17 @@ from .config import DEFAULT_VOXEL_SIZE, MAX_VOXEL_SIZE, option
 DEFAULT_ANNOTATED = "every:10"
 """Annotated frames of a lifted ground truth unless given: every 10th frame (0, 10, 20, ...)."""
 DEFAULT_MIN_FRAMES = 2
-"""Minimum support of a lifted occupied voxel: depth points from at least this many frames (docs/gt.md)."""
+"""A consensus surface voxel is occupied when at least this many frames' points support it (docs/gt.md)."""
 DEFAULT_MIN_POINTS = 3
-"""Minimum support of a lifted occupied voxel: at least this many depth points in all (docs/gt.md)."""
+"""A surface mode of a column needs at least this many points within one voxel of it (docs/gt.md)."""
 DEFAULT_MIN_HIT_RATIO = 0.2
-"""Minimum support of a lifted occupied voxel: frames hitting it / (frames hitting it + frames seeing through
-it) at least this (docs/gt.md)."""
+"""A consensus surface voxel is occupied when the frames supporting it are at least this fraction of the frames
+supporting it or seeing through it (docs/gt.md)."""
+DEFAULT_SURFACE_TOL = 0.08
+"""Metres: a point supports (or, farther behind, sees through) a consensus surface within tol(r) =
+surface_tol + surface_tol_r2 r^2 of it along its normal axis (docs/gt.md)."""
+DEFAULT_SURFACE_TOL_R2 = 0.004
+"""Metres per square metre of range: the range-dependent part of tol(r) (docs/gt.md)."""
 DEFAULT_LABEL_RADIUS = 0.16
 """Metres: an occupied voxel no annotation reached takes the label of the nearest labelled voxel this close
 (centre to centre, two voxels at 8 cm), else 254 (docs/gt.md)."""
@@ -29,18 +34,25 @@ DEFAULT_LABEL_RADIUS = 0.16
 
 @dataclass
 class LiftParams:
-    """The lifting protocol's knobs (``gt --from-sequence``): annotated frames, minimum support, label radius."""
+    """The lifting protocol's knobs (``gt --from-sequence``): annotated frames, the consensus rules, label radius."""
 
     annotated: str = option(DEFAULT_ANNOTATED, metavar="every:K|all|none|I,J,...",
                             help="Frames whose label PNG (SEQ/semantic/) is lifted: every:K (0, K, 2K, ...), all, "
                                  "none, or a comma list of frame numbers.")
+    min_points: int = option(DEFAULT_MIN_POINTS, min=1,
+                             help="A surface mode of a voxel column needs at least this many depth points within one "
+                                  "voxel of it ...")
     min_frames: int = option(DEFAULT_MIN_FRAMES, min=1,
-                             help="Minimum support: a voxel is occupied when depth points of at least this many "
-                                  "frames fall in it ...")
-    min_points: int = option(DEFAULT_MIN_POINTS, min=1, help="... and at least this many points in all ...")
+                             help="... its voxel is occupied when points of at least this many frames support it ...")
     min_hit_ratio: float = option(DEFAULT_MIN_HIT_RATIO, min=0, max=1,
-                                  help="... and the frames hitting it are at least this fraction of those hitting it "
-                                       "or seeing through it.")
+                                  help="... and the frames supporting it are at least this fraction of those "
+                                       "supporting it or seeing through it.")
+    surface_tol: float = option(DEFAULT_SURFACE_TOL, min=0,
+                                help="Metres: a point supports a consensus surface within surface_tol + "
+                                     "surface_tol_r2 * range^2 of it along its normal; a ray whose point lies "
+                                     "farther behind it sees through it.")
+    surface_tol_r2: float = option(DEFAULT_SURFACE_TOL_R2, min=0,
+                                   help="Metres per square metre of range: the range-dependent part of that tolerance.")
     label_radius: float = option(DEFAULT_LABEL_RADIUS, min=0, max=MAX_VOXEL_SIZE * 10,
                                  help="Metres: an occupied voxel no annotation reached takes the nearest lifted "
                                       "label within this distance (voxel centres), else 254.")

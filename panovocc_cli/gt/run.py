@@ -12,7 +12,8 @@ import numpy as np
 from ..config import validate_config
 from ..errors import PanovoccError
 from ..gt_config import GtConfig
-from .lifted import BYTES_PER_VOXEL, LiftAccumulator, depth_bounds, parse_annotated
+from .consensus import BYTES_PER_VOXEL, ConsensusLift
+from .lifted import depth_bounds, parse_annotated
 from .mesh import available_memory
 
 
@@ -53,19 +54,20 @@ def run_mesh_gt(cfg: GtConfig) -> dict:
             "classes": len(grid.class_names), "voxel_size": grid.voxel_size}
 
 
-def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) -> tuple[LiftAccumulator, list[int]]:
-    """Every frame of a :class:`~panovocc_cli.io.sequence.Sequence` added to a :class:`LiftAccumulator` whose
-    box holds all its depth (reads the files; checks them all first).
+def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) -> tuple[ConsensusLift, list[int]]:
+    """Every frame of a :class:`~panovocc_cli.io.sequence.Sequence` given to a :class:`ConsensusLift` whose
+    box holds all its depth: every frame's surface positions, the consensus, then every frame's rays
+    (reads the depth files twice; checks them all first).
 
     Parameters
     ----------
     seq : Sequence (ERP), its poses T_world_cam
     voxel_size : h, metres
-    lift : LiftParams (annotated, max_range used here)
+    lift : LiftParams (annotated, max_range and the consensus rules)
 
     Returns
     -------
-    acc : LiftAccumulator; annotated : the annotated frame numbers
+    acc : ConsensusLift (settled, every frame's evidence in); annotated : the annotated frame numbers
     """
     from tqdm import tqdm
 
@@ -102,10 +104,15 @@ def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) ->
         raise PanovoccError(f"the depth spans a {shape[0]}x{shape[1]}x{shape[2]} grid at {h:g} m, about "
                             f"{need / 2 ** 30:.1f} GiB; {have / 2 ** 30:.1f} GiB is available: choose a larger "
                             "--voxel-size or a --max-range", seq.root)
-    acc = LiftAccumulator(i0, shape, h, len(seq.meta.class_names), lift.max_range)
+    acc = ConsensusLift(i0, shape, h, len(seq.meta.class_names), lift.max_range, min_points=lift.min_points,
+                        min_frames=lift.min_frames, min_hit_ratio=lift.min_hit_ratio, surface_tol=lift.surface_tol,
+                        surface_tol_r2=lift.surface_tol_r2)
+    for i in tqdm(range(n), desc="gt surfaces", unit="frame", disable=not progress):
+        acc.add_density(seq.depth(i), seq.poses[i])
+    acc.settle()
     marked = set(annotated)
-    for i in tqdm(range(n), desc="gt lift", unit="frame", disable=not progress):
-        acc.add_frame(seq.depth(i), seq.poses[i], seq.labels(i) if i in marked else None)
+    for i in tqdm(range(n), desc="gt rays", unit="frame", disable=not progress):
+        acc.add_evidence(seq.depth(i), seq.poses[i], seq.labels(i) if i in marked else None)
     return acc, annotated
 
 
@@ -120,11 +127,11 @@ def lift_sequence(seq, voxel_size: float, lift, progress: bool = False):
 
     Returns
     -------
-    grid : Grid; stats : dict (frames, annotated, occupied, voted, transferred, no_class, free, unknown)
+    grid : Grid; stats : dict (frames, annotated, occupied, voted, transferred, no_class, free, unknown, modes)
     """
     acc, annotated = accumulate_sequence(seq, voxel_size, lift, progress)
     n = len(seq)
-    grid = acc.grid(seq.meta.class_names, lift.min_frames, lift.min_points, lift.label_radius, lift.min_hit_ratio)
+    grid = acc.grid(seq.meta.class_names, lift.label_radius)
     return grid, {"frames": n, "annotated": len(annotated), **acc.stats}
 
 

@@ -1,0 +1,531 @@
+"""Multi-view consensus occupancy of the lifted ground truth (``gt --from-sequence``; docs/gt.md).
+
+An offline builder has every frame at once, so it does not decide a voxel from the frames seen so far:
+it first gathers where every frame puts each surface, takes the consensus, and only then asks every ray
+whether it agrees. Written from the ERP geometry and the lattice alone (no code of the mapper: the
+benchmark must not be built by the method it ranks). On the global lattice of voxel size h:
+
+1. **Surface positions along the normal (pass 1, every frame).** Each valid depth pixel is lifted to the
+   world (``T_world_cam`` · ray · radial depth) and given the dominant axis ``a`` of its surface normal
+   (the cross product of the image tangents ``NORMAL_STEP`` pixels either side, one-sided across a depth
+   jump). The point falls in the *column* of voxels along ``a`` through its other two voxel indices, at
+   a position counted in ``FINE`` bins a voxel (integer counts, and the points' offsets in fixed point:
+   sums that do not depend on the frames' order).
+2. **The consensus (robust statistics per column).** Along every column the counts are smoothed by a
+   triangle one voxel either side; a bin is a *surface mode* when it is the largest within one voxel
+   either side (the first of a plateau) and at least ``min_points`` points lie within one voxel of it.
+   The surface's position is the mean of those points (a trimmed mean: the window is the mode ± one
+   voxel, so one frame's outliers and the noise tails farther off do not move it), and the surface voxel
+   is the one that position falls in (a position on a voxel face goes to the voxel above it, as the mesh
+   ground truth does). One column gives one voxel per surface, however thick the noise spreads the points.
+3. **Every ray's verdict (pass 2, every frame).** A point *supports* the surface whose consensus position
+   is nearest along that surface's axis within ``tol(r) = surface_tol + surface_tol_r2 r²`` (r its range,
+   metres): range noise grows with range. A ray (one every ``max(1, W // 512)`` pixels on both axes) is
+   walked from the camera centre to its point's voxel; every voxel it crosses is *seen*; a surface voxel
+   it crosses *sees through* when the ray crosses that surface's plane inside the voxel and its point lies
+   more than ``tol(r)`` behind the plane. A surface voxel is *occupied* when at least ``min_frames``
+   frames support it and the supporting frames are at least ``min_hit_ratio`` of the frames supporting or
+   seeing through it: free space carved by every ray overrides a mode that noise or one frame made.
+4. **Labels.** As before: the annotated frames vote (one vote per frame per voxel, split over its pixels'
+   classes) — each pixel in the surface voxel its point supports, so a noisy point still votes where its
+   surface is; the nearest-label transfer within ``label_radius`` (:func:`.lifted.label_grid`).
+
+Every frame contributes to the same integer sums whatever the order, so the trajectory run backwards
+gives the same grid, byte for byte.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..config import GT_BOUNDARY_EPS
+from ..errors import PanovoccError
+from ..geometry.erp import cam_point, trig_tables
+from ..grid import Grid
+from .lifted import carve_stride, frame_votes, label_grid
+
+FINE = 4  # position bins a voxel along a column
+NORMAL_STEP = 2  # pixels either side for the image tangents of a point's normal
+STRONG = 0.8  # a tangent pair's normal counts for its axis when |n_a| / |n| is at least this
+JUMP_REL = 0.25  # a neighbour farther than this fraction of the range is across a depth jump
+OFFSET_UNITS = 1 << 20  # fixed-point units of a point's offset within its bin (rounded)
+WINDOW = FINE - 1  # bins either side of a mode whose points give its position (the trimmed mean)
+NMS = FINE - 1  # a mode is the largest density within this many bins either side
+DIP = 0.5  # two modes are one surface unless the density between them dips below this fraction of the smaller
+POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
+KERNEL_R2 = 1.5  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
+# (3 axes x FINE bins x (int32 count + int64 offset + int64 density)) + 3 float64 surface positions
+# + 6 int32 counts/stamps + bools
+BYTES_PER_VOXEL = 3 * FINE * 20 + 3 * 8 + 6 * 4 + 2
+
+
+@nb.njit(cache=True)
+def _world_points(depth, T, max_range, P, ok):
+    """World point of every pixel into ``P`` (H, W, 3) and validity into ``ok`` (H, W)."""
+    H, W = depth.shape
+    sphi, cphi, sth, cth = trig_tables(H, W)
+    for v in range(H):
+        for u in range(W):
+            r = depth[v, u]
+            good = r > 0.0 and np.isfinite(r) and not (max_range > 0.0 and r > max_range)
+            ok[v, u] = good
+            if not good:
+                continue
+            x, y, z = cam_point(r, sphi[v], cphi[v], sth[u], cth[u])
+            for a in range(3):
+                P[v, u, a] = T[a, 0] * x + T[a, 1] * y + T[a, 2] * z + T[a, 3]
+
+
+@nb.njit(cache=True, inline="always")
+def _side(P, ok, depth, v, u, v1, u1, sign, out):
+    """One-sided tangent ``sign * (P[v1, u1] - P[v, u])``; False across a depth jump or an invalid pixel."""
+    r = depth[v, u]
+    if (v1 == v and u1 == u) or not ok[v1, u1] or abs(depth[v1, u1] - r) > JUMP_REL * r:
+        return False
+    for a in range(3):
+        out[a] = sign * (P[v1, u1, a] - P[v, u, a])
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def _dominant(tu, tv):
+    """Dominant axis of the normal ``tu x tv`` and its share ``|n_a| / |n|`` (-1, 0 when degenerate)."""
+    nx = tu[1] * tv[2] - tu[2] * tv[1]
+    ny = tu[2] * tv[0] - tu[0] * tv[2]
+    nz = tu[0] * tv[1] - tu[1] * tv[0]
+    ax, ay, az = abs(nx), abs(ny), abs(nz)
+    n = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if n <= 0.0:
+        return -1, 0.0
+    if ax >= ay and ax >= az:
+        return 0, ax / n
+    if ay >= az:
+        return 1, ay / n
+    return 2, az / n
+
+
+@nb.njit(cache=True)
+def _normal_axes(P, ok, depth, step, axis):
+    """Dominant axes of each pixel's surface normal into ``axis`` (H, W) int8, a bit mask (bit a: axis a;
+    0: none): the axis of the normal of each pair of one-sided tangents (``step`` pixels along the row
+    either side x along the column either side) that does not cross a depth jump, where that normal is
+    within 37 degrees of the axis (``STRONG``; else only the most dominant pair's axis). One bit on a
+    smooth surface; near a crease (an edge, a corner) the pairs straddling it add the other surface's axis, and
+    the point goes into both columns: a surface that passes through a voxel by less than ``step`` pixels
+    still has points in its column."""
+    H, W = depth.shape
+    tu = np.empty((2, 3))
+    tv = np.empty((2, 3))
+    gu = np.empty(2, np.bool_)
+    gv = np.empty(2, np.bool_)
+    for v in range(H):
+        for u in range(W):
+            axis[v, u] = 0
+            if not ok[v, u]:
+                continue
+            gu[0] = _side(P, ok, depth, v, u, v, (u + step) % W, 1.0, tu[0])
+            gu[1] = _side(P, ok, depth, v, u, v, (u - step) % W, -1.0, tu[1])
+            gv[0] = _side(P, ok, depth, v, u, min(v + step, H - 1), u, 1.0, tv[0])
+            gv[1] = _side(P, ok, depth, v, u, max(v - step, 0), u, -1.0, tv[1])
+            mask = 0
+            best, best_share = -1, 0.0
+            for i in range(2):
+                for j in range(2):
+                    if gu[i] and gv[j]:
+                        d, share = _dominant(tu[i], tv[j])
+                        if d >= 0 and share >= STRONG:
+                            mask |= 1 << d
+                        if d >= 0 and share > best_share:
+                            best, best_share = d, share
+            if mask == 0 and best >= 0:
+                mask = 1 << best
+            axis[v, u] = mask
+
+
+@nb.njit(cache=True, inline="always")
+def _deposit(cnt, off, den, q, loc, n_bins, stride, f, fb, half):
+    """One point at fine position ``f`` (bin ``fb``, local ``loc``) of a column whose bin ``loc`` is ``q``."""
+    cnt[q] += 1
+    off[q] += int((f - fb) * OFFSET_UNITS + 0.5)
+    m = (half + 1) * (half + 1)
+    for j in range(-half, half + 1):
+        b = loc + j
+        if 0 <= b < n_bins:
+            den[q + j * stride] += (POINT_MASS * (half + 1 - abs(j))) // m
+
+
+@nb.njit(cache=True)
+def _density_kernel(P, ok, axis, depth, h, i0, shape, k2, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
+    """Pass 1: each point with a normal axis counted in its column's fine bin and spread over the bins of
+    its range-dependent triangle (module docstring, 1)."""
+    H, W = ok.shape
+    idx = np.empty(3, np.int64)
+    for v in range(H):
+        for u in range(W):
+            mask = axis[v, u]
+            if mask == 0:
+                continue
+            inside = True
+            for b in range(3):
+                idx[b] = _vox(P[v, u, b], h, i0, b)
+                if idx[b] < 0 or idx[b] >= shape[b]:
+                    inside = False
+            if not inside:
+                continue
+            r = depth[v, u]
+            half = max(FINE // 2, int(k2 * r * r / h * FINE + 0.5))
+            half = min(half, 4 * FINE)
+            for a in range(3):
+                if mask & (1 << a):
+                    _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2,
+                                  off2, den2)
+
+
+@nb.njit(cache=True, inline="always")
+def _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
+    """Point (v, u) into its column along axis ``a``."""
+    f = P[v, u, a] / h * FINE
+    fb = int(np.floor(f))
+    loc = fb - i0[a] * FINE
+    if loc < 0 or loc >= shape[a] * FINE:
+        return
+    n_bins = shape[a] * FINE
+    if a == 0:
+        q = (loc * shape[1] + idx[1]) * shape[2] + idx[2]
+        _deposit(cnt0, off0, den0, q, loc, n_bins, shape[1] * shape[2], f, fb, half)
+    elif a == 1:
+        q = (idx[0] * (shape[1] * FINE) + loc) * shape[2] + idx[2]
+        _deposit(cnt1, off1, den1, q, loc, n_bins, shape[2], f, fb, half)
+    else:
+        q = (idx[0] * shape[1] + idx[1]) * (shape[2] * FINE) + loc
+        _deposit(cnt2, off2, den2, q, loc, n_bins, 1, f, fb, half)
+
+
+@nb.njit(cache=True, inline="always")
+def _vox(x, h, i0, b):
+    """Box index along axis b of coordinate x (metres); on a voxel face (within GT_BOUNDARY_EPS): the voxel above."""
+    return int(np.floor(x / h + GT_BOUNDARY_EPS)) - i0[b]
+
+
+@nb.njit(cache=True)
+def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S1, S2, hit_frames, hit_points,
+                     hit_stamp, see_frames, see_stamp, seen, pix_lin):
+    """Pass 2: support, seen-through and seen voxels of one frame (module docstring, 3); ``pix_lin``
+    (H, W) int64 receives the surface voxel each pixel supports (-1: none)."""
+    H, W = depth.shape
+    ox, oy, oz = T[0, 3], T[1, 3], T[2, 3]
+    o = np.array([ox, oy, oz])
+    p = np.empty(3)
+    idx = np.empty(3, np.int64)
+    for v in range(H):
+        for u in range(W):
+            pix_lin[v, u] = -1
+            if not ok[v, u]:
+                continue
+            r = depth[v, u]
+            tol = tol0 + tol2 * r * r
+            for b in range(3):
+                p[b] = P[v, u, b]
+                idx[b] = _vox(p[b], h, i0, b)
+            # support: the nearest consensus surface along its axis within tol
+            best = tol
+            bq = -1
+            for a in range(3):
+                b1, b2 = (a + 1) % 3, (a + 2) % 3
+                if idx[b1] < 0 or idx[b1] >= shape[b1] or idx[b2] < 0 or idx[b2] >= shape[b2]:
+                    continue
+                lo = max(_vox(p[a] - tol, h, i0, a), 0)
+                hi = min(_vox(p[a] + tol, h, i0, a), shape[a] - 1)
+                for k in range(lo, hi + 1):
+                    idx2 = idx.copy()
+                    idx2[a] = k
+                    q = (idx2[0] * shape[1] + idx2[1]) * shape[2] + idx2[2]
+                    s = S0[q] if a == 0 else (S1[q] if a == 1 else S2[q])
+                    if np.isfinite(s):
+                        d = abs(p[a] - s)
+                        if d <= best:
+                            if d < best or bq < 0 or q < bq:
+                                best = d
+                                bq = q
+            if bq >= 0:
+                pix_lin[v, u] = bq
+                hit_points[bq] += 1
+                if hit_stamp[bq] != f:
+                    hit_stamp[bq] = f
+                    hit_frames[bq] += 1
+            if v % stride != 0 or u % stride != 0:
+                continue
+            # Amanatides-Woo walk in voxel units from the camera centre to the point's voxel (excluded)
+            gx, gy, gz = ox / h, oy / h, oz / h
+            px, py, pz = p[0] / h, p[1] / h, p[2] / h
+            cx, cy, cz = int(np.floor(gx)), int(np.floor(gy)), int(np.floor(gz))
+            ex, ey, ez = int(np.floor(px)), int(np.floor(py)), int(np.floor(pz))
+            n = abs(ex - cx) + abs(ey - cy) + abs(ez - cz)
+            dx, dy, dz = px - gx, py - gy, pz - gz
+            sx = 1 if dx > 0 else -1
+            sy = 1 if dy > 0 else -1
+            sz = 1 if dz > 0 else -1
+            tx = ((cx + (1 if dx > 0 else 0)) - gx) / dx if dx != 0 else np.inf
+            ty = ((cy + (1 if dy > 0 else 0)) - gy) / dy if dy != 0 else np.inf
+            tz = ((cz + (1 if dz > 0 else 0)) - gz) / dz if dz != 0 else np.inf
+            ddx = abs(1.0 / dx) if dx != 0 else np.inf
+            ddy = abs(1.0 / dy) if dy != 0 else np.inf
+            ddz = abs(1.0 / dz) if dz != 0 else np.inf
+            for _ in range(n):
+                if cx == ex and cy == ey and cz == ez:
+                    break
+                lx, ly, lz = cx - i0[0], cy - i0[1], cz - i0[2]
+                if 0 <= lx < shape[0] and 0 <= ly < shape[1] and 0 <= lz < shape[2]:
+                    q = (lx * shape[1] + ly) * shape[2] + lz
+                    seen[q] = True
+                    for a in range(3):
+                        s = S0[q] if a == 0 else (S1[q] if a == 1 else S2[q])
+                        if not np.isfinite(s) or see_stamp[q] == f:
+                            continue
+                        if (o[a] - s) * (p[a] - s) >= 0.0 or abs(p[a] - s) <= tol:
+                            continue  # the point is on the camera's side of the plane, or within tol of it
+                        w = (s - o[a]) / (p[a] - o[a])  # where the ray crosses the plane: inside this voxel?
+                        b1, b2 = (a + 1) % 3, (a + 2) % 3
+                        c1 = o[b1] + w * (p[b1] - o[b1])
+                        c2 = o[b2] + w * (p[b2] - o[b2])
+                        l1 = lx if b1 == 0 else (ly if b1 == 1 else lz)
+                        l2 = lx if b2 == 0 else (ly if b2 == 1 else lz)
+                        if _vox(c1, h, i0, b1) == l1 and _vox(c2, h, i0, b2) == l2:
+                            see_stamp[q] = f
+                            see_frames[q] += 1
+                if tx <= ty and tx <= tz:
+                    cx += sx
+                    tx += ddx
+                elif ty <= tz:
+                    cy += sy
+                    ty += ddy
+                else:
+                    cz += sz
+                    tz += ddz
+
+
+def _window_sum(x: np.ndarray, axis: int, half: int) -> np.ndarray:
+    """Sum of ``x`` (as int64) over ``[b - half, b + half]`` along ``axis`` (zero outside)."""
+    pad = [(0, 0)] * x.ndim
+    pad[axis] = (half + 1, half)
+    c = np.cumsum(np.pad(x.astype(np.int64), pad), axis=axis)
+    n = x.shape[axis]
+    return np.take(c, np.arange(2 * half + 1, n + 2 * half + 1), axis=axis) - np.take(c, np.arange(n), axis=axis)
+
+
+@nb.njit(cache=True)
+def _row_modes(den, cnt, off, min_points, out_bin, out_pos, out_str):
+    """Modes of one column's bins (module docstring, 2); returns how many were written to ``out_*``."""
+    L = den.shape[0]
+    keep = np.empty(L, np.int64)
+    nk = 0
+    for b in range(L):
+        d = den[b]
+        if d <= 0:
+            continue
+        is_max = True
+        for j in range(max(b - NMS, 0), min(b + NMS + 1, L)):
+            if (j < b and den[j] >= d) or (j > b and den[j] > d):
+                is_max = False
+                break
+        if not is_max:
+            continue
+        if nk > 0:  # one blob with the previous mode (no dip between them): keep the stronger
+            p = keep[nk - 1]
+            dip = d
+            for j in range(p, b + 1):
+                dip = min(dip, den[j])
+            if dip >= DIP * min(d, den[p]):
+                if d > den[p]:
+                    keep[nk - 1] = b
+                continue
+        keep[nk] = b
+        nk += 1
+    m = 0
+    for i in range(nk):
+        b = keep[i]
+        c = 0
+        s = 0
+        for j in range(max(b - WINDOW, 0), min(b + WINDOW + 1, L)):
+            c += cnt[j]
+            s += cnt[j] * j * OFFSET_UNITS + off[j]
+        if c < min_points or c == 0:
+            continue
+        out_bin[m] = b
+        out_pos[m] = s / (c * float(OFFSET_UNITS))
+        out_str[m] = den[b]
+        m += 1
+    return m
+
+
+@nb.njit(cache=True)
+def _all_modes(den, cnt, off, min_points):
+    R, L = den.shape
+    rows = []
+    bins = []
+    pos = []
+    strength = []
+    ob = np.empty(L, np.int64)
+    op = np.empty(L)
+    os_ = np.empty(L, np.int64)
+    for r in range(R):
+        m = _row_modes(den[r], cnt[r], off[r], min_points, ob, op, os_)
+        for i in range(m):
+            rows.append(r)
+            bins.append(ob[i])
+            pos.append(op[i])
+            strength.append(os_[i])
+    return np.array(rows, np.int64), np.array(bins, np.int64), np.array(pos), np.array(strength, np.int64)
+
+
+def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, min_points: int):
+    """Surface modes of the columns of one axis (module docstring, 2).
+
+    Parameters
+    ----------
+    cnt, off, den : point counts, summed fixed-point offsets and smoothed density per fine bin, shaped like
+        the box with ``FINE`` bins a voxel along ``axis``
+    min_points : points within the mode's window, at least
+
+    Returns
+    -------
+    bins : (m, 3) int64 fine-bin index of each mode (``axis`` in bins, the others in voxels)
+    pos : (m,) float64 the mode's position in fine-bin units of the box (trimmed mean of its window)
+    strength : (m,) int64 smoothed density at the mode
+    """
+    sh = np.moveaxis(np.empty(cnt.shape, np.int8), axis, -1).shape
+    rows, b, pos, strength = _all_modes(*(np.ascontiguousarray(np.moveaxis(x, axis, -1)).reshape(-1, sh[-1])
+                                          for x in (den, cnt, off)), int(min_points))
+    other = np.stack(np.unravel_index(rows, sh[:-1]), 1) if len(rows) else np.zeros((0, 2), np.int64)
+    bins = np.insert(other, axis, b, axis=1)
+    return bins, pos, strength
+
+
+class ConsensusLift:
+    """The consensus lifting on a fixed dense box of the global lattice (module docstring).
+
+    Feed every frame to :meth:`add_density`, call :meth:`settle`, then feed every frame again (with the
+    labels of the annotated ones) to :meth:`add_evidence`, and take :meth:`grid`.
+
+    Parameters
+    ----------
+    index0 : (3,) int, lattice index of the box's voxel [0, 0, 0]
+    shape : (3,) int, voxels per axis
+    voxel_size : h, metres
+    n_classes : number of label ids of the annotations (0 = unlabelled)
+    max_range : metres, depth beyond it is ignored (0: keep all)
+    min_points, min_frames, min_hit_ratio, surface_tol, surface_tol_r2 : the rules (module docstring)
+    """
+
+    def __init__(self, index0, shape, voxel_size: float, n_classes: int, max_range: float = 0.0, *,
+                 min_points: int, min_frames: int, min_hit_ratio: float, surface_tol: float, surface_tol_r2: float):
+        self.index0 = np.asarray(index0, dtype=np.int64).reshape(3)
+        self.shape = tuple(int(s) for s in shape)
+        self.h = float(voxel_size)
+        self.n_classes = int(n_classes)
+        self.max_range = float(max_range)
+        self.min_points, self.min_frames = int(min_points), int(min_frames)
+        self.min_hit_ratio = float(min_hit_ratio)
+        self.tol0, self.tol2 = float(surface_tol), float(surface_tol_r2)
+        n = int(np.prod(self.shape))
+        self._cnt = [np.zeros(n * FINE, np.int32) for _ in range(3)]
+        self._off = [np.zeros(n * FINE, np.int64) for _ in range(3)]
+        self._den = [np.zeros(n * FINE, np.int64) for _ in range(3)]
+        self.surface: list[np.ndarray] | None = None
+        self.hit_frames = np.zeros(n, np.int32)
+        self.hit_points = np.zeros(n, np.int32)
+        self.see_frames = np.zeros(n, np.int32)
+        self.seen = np.zeros(n, bool)
+        self._hit_stamp = np.full(n, -1, np.int32)
+        self._see_stamp = np.full(n, -1, np.int32)
+        self._votes: list[tuple[np.ndarray, np.ndarray]] = []
+        self.frames = 0
+        self.evidence_frames = 0
+        self.annotated = 0
+        self.stats: dict[str, int] = {}
+
+    def _lift(self, depth, T):
+        depth = np.ascontiguousarray(depth, dtype=np.float32)
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        H, W = depth.shape
+        P = np.zeros((H, W, 3))
+        ok = np.zeros((H, W), bool)
+        _world_points(depth, T, self.max_range, P, ok)
+        return depth, T, P, ok
+
+    def add_density(self, depth: np.ndarray, T_world_cam: np.ndarray) -> None:
+        """Pass 1: one frame's points into the columns. depth (H, W) metres radial (0 invalid), T (4, 4)."""
+        if self.surface is not None:
+            raise PanovoccError("add_density after settle(): the consensus is already taken")
+        depth, T, P, ok = self._lift(depth, T_world_cam)
+        axis = np.empty(depth.shape, np.int8)
+        _normal_axes(P, ok, depth, NORMAL_STEP, axis)
+        c, o, d = self._cnt, self._off, self._den
+        _density_kernel(P, ok, axis, depth, self.h, self.index0, np.asarray(self.shape, np.int64), self.tol2 * KERNEL_R2,
+                        c[0], o[0], d[0], c[1], o[1], d[1], c[2], o[2], d[2])
+        self.frames += 1
+
+    def settle(self) -> None:
+        """Take the consensus: each column's surface modes and their voxels (module docstring, 2)."""
+        n = int(np.prod(self.shape))
+        self.surface = []
+        self.modes = 0
+        for a in range(3):
+            sh = list(self.shape)
+            sh[a] *= FINE
+            bins, pos, strength = column_modes(self._cnt[a].reshape(sh), self._off[a].reshape(sh),
+                                                self._den[a].reshape(sh), a, self.min_points)
+            S = np.full(n, np.nan)
+            if len(bins):
+                t = (self.index0[a] * FINE + pos) / FINE  # voxel units of the lattice
+                vox = bins.copy()
+                vox[:, a] = np.floor(t + GT_BOUNDARY_EPS).astype(np.int64) - self.index0[a]
+                inside = (vox[:, a] >= 0) & (vox[:, a] < self.shape[a])
+                vox, t, strength = vox[inside], t[inside], strength[inside]
+                lin = np.ravel_multi_index(tuple(vox.T), self.shape)
+                order = np.lexsort((lin, -strength))  # two modes in one voxel: the stronger (then the first)
+                lin, t = lin[order], t[order]
+                _, first = np.unique(lin, return_index=True)
+                S[lin[first]] = t[first] * self.h
+                self.modes += len(first)
+            self.surface.append(S)
+        self._cnt = self._off = self._den = None  # the counts are no longer needed
+
+    def add_evidence(self, depth: np.ndarray, T_world_cam: np.ndarray, labels: np.ndarray | None = None) -> None:
+        """Pass 2: one frame's support, see-through and seen voxels; ``labels`` (H, W) class ids of an
+        annotated frame (0 = unlabelled) vote in the surface voxels their points support."""
+        if self.surface is None:
+            raise PanovoccError("add_evidence before settle(): take the consensus first")
+        depth, T, P, ok = self._lift(depth, T_world_cam)
+        H, W = depth.shape
+        pix = np.empty((H, W), np.int64)
+        S = self.surface
+        _evidence_kernel(depth, P, ok, T, self.h, self.index0, np.asarray(self.shape, np.int64),
+                         np.int32(self.evidence_frames), carve_stride(W), self.tol0, self.tol2, S[0], S[1], S[2],
+                         self.hit_frames, self.hit_points, self._hit_stamp, self.see_frames, self._see_stamp,
+                         self.seen, pix)
+        self.evidence_frames += 1
+        if labels is None:
+            return
+        lab = np.asarray(labels)
+        if lab.shape != depth.shape:
+            raise PanovoccError(f"labels {lab.shape} and depth {depth.shape} differ in size")
+        self._votes.append(frame_votes(pix, lab, self.n_classes))
+        self.annotated += 1
+
+    def occupied(self) -> np.ndarray:
+        """(n,) bool over the box: surface voxels the rays confirm (module docstring, 3)."""
+        if self.surface is None:
+            raise PanovoccError("occupied() before settle()")
+        cand = np.isfinite(self.surface[0]) | np.isfinite(self.surface[1]) | np.isfinite(self.surface[2])
+        hf = self.hit_frames.astype(np.int64)
+        return cand & (hf >= self.min_frames) & (hf >= self.min_hit_ratio * (hf + self.see_frames))
+
+    def grid(self, class_names: list[str], label_radius: float) -> Grid:
+        """The lifted ground truth: 0 seen free, 1..253 class, 254 occupied without class, 255 never observed."""
+        occ = self.occupied()
+        g, self.stats = label_grid(occ, self.seen & ~occ, self._votes, self.n_classes, class_names, label_radius,
+                                   self.index0, self.shape, self.h)
+        self.stats["modes"] = self.modes
+        return g
