@@ -23,9 +23,7 @@ from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .memory import FIXED_SCALE
-from .params import OccupancyParams
-
-RULES = ("frequency", "score")
+from .params import RULES, OccupancyParams
 
 
 def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:

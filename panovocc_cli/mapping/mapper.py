@@ -54,14 +54,10 @@ from .contributors import geometry_delta
 from .export import MapExport, export_memory
 from .config import FORMAT_VERSION, mapper_gsc_params
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
-from .params import GeometryParams, OccupancyParams
+from .params import KERNELS, RADIAL, RULES, GeometryParams, OccupancyParams
 from .rpu import DeltaStore, ReversibleMemory, has_store
 from .semantic import semantic_channels, semantic_delta
 
-# (2: semantic section; a version-1 config is a geometry-only map)
-KERNELS = ("psvf", "point")
-RULES = ("frequency", "score")
-RADIAL = ("fit", "model")
 
 
 @dataclass

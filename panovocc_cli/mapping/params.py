@@ -9,8 +9,11 @@ from dataclasses import dataclass
 
 from ..config import DEFAULT_VOXEL_SIZE, MAX_VOXEL_SIZE, option
 
-KERNELS = ("psvf", "point")
-RULES = ("frequency", "score")
+# the values each choice field takes: the one list the options, the mapper's checks and the export read
+KERNELS = ("psvf", "point")  # GeometryParams.kernel
+RADIAL = ("fit", "model")  # GeometryParams.radial
+EXTENTS = ("surfel", "box", "centre")  # GeometryParams.extent
+RULES = ("frequency", "score")  # OccupancyParams.rule
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from ...geometry.lattice import KEY_BITS, KEY_OFFSET, KEY_SHIFT_I
 from ...runtime import keep_freed_heap  # noqa: F401 (applied by runtime.setup(), not at import)
 from ..freespace import carve
 from ..memory import FIXED_SCALE, Delta
-from ..params import GeometryParams
+from ..params import EXTENTS, KERNELS, GeometryParams
 from .rays import lift_kernels
 from .splat import local_voxel, splat, splat_axis
 from .surfel import surfels_for
@@ -172,10 +172,10 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     Delta with channels A (fixed point, FIXED_SCALE), N (0/1: a measurement of the frame lies in the
     voxel, or, for psvf, its kernel support there is at least ``n_fill``), F (0/1), O (0/1)
     """
-    if p.kernel not in ("psvf", "point"):
+    if p.kernel not in KERNELS:
         raise PanovoccError(f"unknown kernel {p.kernel!r} (expected psvf or point)")
     c_norm = 1.0 / (2.0 * np.pi) if p.kernel == "psvf" else 1.0
-    if p.extent not in ("box", "centre", "surfel"):
+    if p.extent not in EXTENTS:
         raise PanovoccError(f"unknown kernel extent {p.extent!r} (expected surfel, box or centre)")
     if p.kernel == "psvf" and p.extent == "surfel":
         x, Pt, half, w, ax, sa, bb, surf = surfels_for(depth, T_world_cam, p, c_norm)
