@@ -14,8 +14,12 @@ __all__ = ["Frame", "Mapper", "MapperConfig"]
 def __getattr__(name: str):
     # the Mapper pulls in numba kernels: imported on first use, so `import panovocc_cli.mapping.params`
     # (the CLI's --help) stays light
-    if name in ("Mapper", "MapperConfig"):
-        from . import mapper
+    if name == "Mapper":
+        from .mapper import Mapper
 
-        return getattr(mapper, name)
+        return Mapper
+    if name == "MapperConfig":
+        from .config import MapperConfig
+
+        return MapperConfig
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,10 +1,12 @@
-"""The configs of ``panovocc map`` and ``panovocc segeval``, in a module that imports nothing heavy.
+"""The configs of ``panovocc map``, ``revise`` and ``segeval`` and of the :class:`~.mapper.Mapper`, in a
+module that imports nothing heavy.
 
 ``panovocc --help`` builds every command's options from the stage configs (cli/options.py), so the
-modules holding them import only the standard library, numpy-free parameter modules
+modules holding them import only the standard library, numpy, numpy-free parameter modules
 (:mod:`.params`, :mod:`panovocc_cli.semantics.params`, :mod:`panovocc_cli.semantics.gsc`) and
-:mod:`panovocc_cli.config` -- never numba. The public names stay importable from their former homes
-(:mod:`.pipeline`: ``MapConfig``; :mod:`.semantic`: ``SemanticParams``, ``SegevalConfig``, ...).
+:mod:`panovocc_cli.config` -- never numba. A map folder's ``config.json`` is read by one parser
+(:func:`_read_sections`), whether it was written by a map run (:class:`MapConfig`) or by
+:meth:`Mapper.save <.mapper.Mapper.save>` (:class:`MapperConfig`, the mapper's sections only).
 """
 
 from __future__ import annotations
@@ -14,19 +16,19 @@ import math
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+
+import numpy as np
 
 from ..config import DEFAULT_SEED, MAX_STRIDE, option, typed_from_json
 from ..errors import PanovoccError
+from ..geometry.lattice import local_origin
 from ..semantics.gsc import GSCParams
 from ..semantics.params import EvidenceWeights
 from .ablation import AblationParams
-from .params import GeometryParams, OccupancyParams
+from .params import KERNELS, RADIAL, RULES, GeometryParams, OccupancyParams
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .mapper import MapperConfig
-
-FORMAT_VERSION = 3  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule
+FORMAT_VERSION = 3  # of a map folder; 2: semantic section (a version-1 config is a geometry-only map); 3: footprint-
+# fitted surfels, N = frames with a measurement, occupancy rule
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 SEGMENTER_NONE = "none"
@@ -168,20 +170,12 @@ class MapConfig:
 
     @classmethod
     def from_json(cls, d: dict, where) -> "MapConfig":
-        if not isinstance(d, dict):
-            raise PanovoccError("not a panovocc map config (expected a JSON object)", where)
-        version = d.get("format_version", 1)
-        if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
-            raise PanovoccError(f"format_version {version!r}: this panovocc reads map formats 1 to {FORMAT_VERSION} "
-                                "(a newer panovocc wrote it, or the file is corrupt)", where)
+        """From a map run's ``config.json`` (:func:`_read_sections`; the run's fields are required)."""
+        g, o, s, origin = _read_sections(d, where)
         try:
-            g = typed_from_json(GeometryParams, d["geometry"])
-            o = typed_from_json(OccupancyParams, d["occupancy"])
-            s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
-                       checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
-                       origin=None if d.get("origin") is None else [float(v) for v in d["origin"]],
+                       checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
                        semantic=s, ablation=AblationParams.from_json(d.get("ablation")))
         except (KeyError, TypeError, ValueError, AttributeError) as e:
@@ -189,16 +183,104 @@ class MapConfig:
 
     def mapper_config(self) -> "MapperConfig":
         """The mapper's part of a resolved config (the vocabulary is empty for ``--segmenter none``)."""
-        from .mapper import MapperConfig
-
-        s = self.semantic
-        return MapperConfig(geometry=self.geometry, occupancy=self.occupancy,
-                            vocab=list(s.vocab) if s.enabled else [], use_gsc=s.use_gsc, gsc=s.gsc,
-                            weights=s.weights, origin=None if self.origin is None else list(self.origin))
+        return MapperConfig.of(self.geometry, self.occupancy, self.semantic, self.origin)
 
 
+def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticParams, list | None]:
+    """The mapper's sections of a map folder's ``config.json`` (``d``, parsed JSON): geometry, occupancy,
+    semantic (absent: a geometry-only map) and the local origin (absent: a map made before local origins,
+    keyed relative to the world's). Refuses, naming ``where``, anything but a JSON object of a format
+    version this panovocc reads with sections of the right keys and types."""
+    if not isinstance(d, dict):
+        raise PanovoccError("not a panovocc map config (expected a JSON object)", where)
+    version = d.get("format_version", 1)
+    if type(version) is not int or not 1 <= version <= FORMAT_VERSION:
+        raise PanovoccError(f"format_version {version!r}: this panovocc reads map formats 1 to {FORMAT_VERSION} "
+                            "(a newer panovocc wrote it, or the file is corrupt)", where)
+    try:
+        g = typed_from_json(GeometryParams, d["geometry"])
+        o = typed_from_json(OccupancyParams, d["occupancy"])
+        s = SemanticParams.from_json(d.get("semantic"))
+        origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
+        raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
+    return g, o, s, origin
 
 
+@dataclass
+class MapperConfig:
+    """Everything the mapper computes with: geometry, occupancy and semantic fusion parameters.
+
+    geometry : GeometryParams (``stride`` is the resolved pixel stride; the map command sets
+        ``max(1, W // 256)``, 4 at 1024)
+    occupancy : OccupancyParams, the decision rule
+    vocab : list of str, the canonical class names of the logits frames carry (C of them); empty =
+        geometry only (logits are then ignored and occupied voxels export as 254)
+    use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
+    gsc : GSCParams of the labelled export; weights : EvidenceWeights of the semantic evidence
+    origin : (3,) float metres, world, on the lattice (a whole number of voxels), or None: the map's local
+        origin, which its voxel keys are relative to (``geometry.lattice.local_origin``); None = the
+        voxel of the first integrated frame's position
+    """
+
+    geometry: GeometryParams = field(default_factory=GeometryParams)
+    occupancy: OccupancyParams = field(default_factory=OccupancyParams)
+    vocab: list = field(default_factory=list)
+    use_gsc: bool = True
+    gsc: GSCParams = field(default_factory=mapper_gsc_params)
+    weights: EvidenceWeights = field(default_factory=EvidenceWeights)
+    origin: list | None = None
+
+    @classmethod
+    def of(cls, geometry: GeometryParams, occupancy: OccupancyParams, semantic: SemanticParams,
+           origin: list | None) -> "MapperConfig":
+        """The mapper's config of a map's sections (the vocabulary is empty for ``--segmenter none``)."""
+        return cls(geometry=geometry, occupancy=occupancy,
+                   vocab=list(semantic.vocab) if semantic.enabled else [], use_gsc=semantic.use_gsc,
+                   gsc=semantic.gsc, weights=semantic.weights, origin=None if origin is None else list(origin))
+
+    def check(self) -> "MapperConfig":
+        """Validate the parameter ranges; raise :class:`PanovoccError` naming the option."""
+        g = self.geometry
+        if not (np.isfinite(g.voxel_size) and g.voxel_size > 0):
+            raise PanovoccError(f"--voxel-size must be positive, got {g.voxel_size}")
+        if int(g.stride) < 1:
+            raise PanovoccError(f"stride must be >= 1, got {g.stride}")
+        if g.kernel not in KERNELS:
+            raise PanovoccError(f"--kernel must be psvf or point, got {g.kernel!r}")
+        if self.occupancy.rule not in RULES:
+            raise PanovoccError(f"--rule must be frequency or score, got {self.occupancy.rule!r}")
+        if g.radial not in RADIAL:
+            raise PanovoccError(f"radial must be fit or model, got {g.radial!r}")
+        if not all(isinstance(w, str) and w for w in self.vocab) or len(set(self.vocab)) != len(self.vocab):
+            raise PanovoccError(f"vocabulary must be distinct class names, got {self.vocab!r}")
+        if self.origin is not None:
+            o = np.asarray(self.origin, np.float64)
+            if o.shape != (3,) or not np.all(np.isfinite(o)):
+                raise PanovoccError(f"--origin must be three finite numbers X,Y,Z (metres), got {self.origin!r}")
+            self.origin = [float(x) for x in self.origin_index() * g.voxel_size]  # snapped to the lattice
+        return self
+
+    def origin_index(self) -> np.ndarray:
+        """The origin's lattice index (3,) int64 (zeros without an origin)."""
+        if self.origin is None:
+            return np.zeros(3, np.int64)
+        h = self.geometry.voxel_size
+        o = np.asarray(self.origin, np.float64)
+        return local_origin(o + 0.5 * h, h)  # a lattice point (a stored origin) reads back as its own voxel
+
+    def to_json(self) -> dict:
+        """The map folder's ``config.json`` sections of the mapper (the map command adds its run fields)."""
+        return {"geometry": dataclasses.asdict(self.geometry), "occupancy": dataclasses.asdict(self.occupancy),
+                "semantic": {"vocab": list(self.vocab), "use_gsc": self.use_gsc,
+                             "gsc": dataclasses.asdict(self.gsc), "weights": dataclasses.asdict(self.weights)},
+                "origin": None if self.origin is None else list(self.origin), "format_version": FORMAT_VERSION}
+
+    @classmethod
+    def from_json(cls, d: dict, where=None) -> "MapperConfig":
+        """From a map folder's ``config.json`` (a mapper's or a map run's: :func:`_read_sections`; the run's
+        own fields are not read)."""
+        return cls.of(*_read_sections(d, where)).check()
 
 
 @dataclass

@@ -37,7 +37,6 @@ docs/mapping.md, "Delta store size").
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -48,104 +47,17 @@ from ..frame import Frame
 from ..grid import Grid
 from ..io import mapstore
 from ..io.poses import write_poses
-from ..semantics.evidence import EvidenceWeights
-from ..semantics.gsc import GSCParams
+from .config import MapperConfig
 from .contributors import geometry_delta
 from .export import MapExport, export_memory
-from .config import FORMAT_VERSION, mapper_gsc_params
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
-from .params import KERNELS, RADIAL, RULES, GeometryParams, OccupancyParams
 from .rpu import DeltaStore, ReversibleMemory, has_store
 from .semantic import semantic_channels, semantic_delta
 
 
-
-@dataclass
-class MapperConfig:
-    """Everything the mapper computes with: geometry, occupancy and semantic fusion parameters.
-
-    geometry : GeometryParams (``stride`` is the resolved pixel stride; the map command sets
-        ``max(1, W // 256)``, 4 at 1024)
-    occupancy : OccupancyParams, the decision rule
-    vocab : list of str, the canonical class names of the logits frames carry (C of them); empty =
-        geometry only (logits are then ignored and occupied voxels export as 254)
-    use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
-    gsc : GSCParams of the labelled export; weights : EvidenceWeights of the semantic evidence
-    origin : (3,) float metres, world, on the lattice (a whole number of voxels), or None: the map's local
-        origin, which its voxel keys are relative to (``geometry.lattice.local_origin``); None = the
-        voxel of the first integrated frame's position
-    """
-
-    geometry: GeometryParams = field(default_factory=GeometryParams)
-    occupancy: OccupancyParams = field(default_factory=OccupancyParams)
-    vocab: list = field(default_factory=list)
-    use_gsc: bool = True
-    gsc: GSCParams = field(default_factory=mapper_gsc_params)
-    weights: EvidenceWeights = field(default_factory=EvidenceWeights)
-    origin: list | None = None
-
-    def check(self) -> "MapperConfig":
-        """Validate the parameter ranges; raise :class:`PanovoccError` naming the option."""
-        g = self.geometry
-        if not (np.isfinite(g.voxel_size) and g.voxel_size > 0):
-            raise PanovoccError(f"--voxel-size must be positive, got {g.voxel_size}")
-        if int(g.stride) < 1:
-            raise PanovoccError(f"stride must be >= 1, got {g.stride}")
-        if g.kernel not in KERNELS:
-            raise PanovoccError(f"--kernel must be psvf or point, got {g.kernel!r}")
-        if self.occupancy.rule not in RULES:
-            raise PanovoccError(f"--rule must be frequency or score, got {self.occupancy.rule!r}")
-        if g.radial not in RADIAL:
-            raise PanovoccError(f"radial must be fit or model, got {g.radial!r}")
-        if not all(isinstance(w, str) and w for w in self.vocab) or len(set(self.vocab)) != len(self.vocab):
-            raise PanovoccError(f"vocabulary must be distinct class names, got {self.vocab!r}")
-        if self.origin is not None:
-            o = np.asarray(self.origin, np.float64)
-            if o.shape != (3,) or not np.all(np.isfinite(o)):
-                raise PanovoccError(f"--origin must be three finite numbers X,Y,Z (metres), got {self.origin!r}")
-            self.origin = [float(x) for x in self.origin_index() * g.voxel_size]  # snapped to the lattice
-        return self
-
-    def origin_index(self) -> np.ndarray:
-        """The origin's lattice index (3,) int64 (zeros without an origin)."""
-        from ..geometry.lattice import local_origin
-
-        if self.origin is None:
-            return np.zeros(3, np.int64)
-        h = self.geometry.voxel_size
-        o = np.asarray(self.origin, np.float64)
-        return local_origin(o + 0.5 * h, h)  # a lattice point (a stored origin) reads back as its own voxel
-
-    def channels(self) -> tuple[ChannelSpec, ...]:
-        """Memory channels: A N F O, then E S rgb_sum normal_sum count with a vocabulary."""
-        return GEOMETRY_CHANNELS + (semantic_channels(len(self.vocab)) if self.vocab else ())
-
-    def to_json(self) -> dict:
-        """The map folder's ``config.json`` sections of the mapper (the map command adds its run fields)."""
-        return {"geometry": dataclasses.asdict(self.geometry), "occupancy": dataclasses.asdict(self.occupancy),
-                "semantic": {"vocab": list(self.vocab), "use_gsc": self.use_gsc,
-                             "gsc": dataclasses.asdict(self.gsc), "weights": dataclasses.asdict(self.weights)},
-                "origin": None if self.origin is None else list(self.origin), "format_version": FORMAT_VERSION}
-
-    @classmethod
-    def from_json(cls, d: dict, where=None) -> "MapperConfig":
-        """From a map folder's ``config.json`` (a mapper's or a map run's; extra keys are ignored)."""
-        try:
-            version = int(d.get("format_version", 1))
-            if version > FORMAT_VERSION:
-                raise PanovoccError(f"format_version {version} is newer than this panovocc reads ({FORMAT_VERSION})",
-                                    where)
-            g = GeometryParams(**d["geometry"])
-            o = OccupancyParams(**d["occupancy"])
-            s = d.get("semantic") or {}
-            vocab = [] if s.get("segmenter") == "none" else list(s.get("vocab") or [])
-            gsc = dataclasses.replace(mapper_gsc_params(), **s.get("gsc", {}))
-            weights = EvidenceWeights(**s.get("weights", {}))
-            origin = d.get("origin")  # absent: a map made before local origins (keys relative to the world's)
-            return cls(geometry=g, occupancy=o, vocab=vocab, use_gsc=bool(s.get("use_gsc", True)), gsc=gsc,
-                       weights=weights, origin=None if origin is None else list(origin)).check()
-        except (KeyError, TypeError, ValueError, AttributeError) as e:
-            raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
+def memory_channels(config: MapperConfig) -> tuple[ChannelSpec, ...]:
+    """The memory channels of a mapper: A N F O, then E S rgb_sum normal_sum count with a vocabulary."""
+    return GEOMETRY_CHANNELS + (semantic_channels(len(config.vocab)) if config.vocab else ())
 
 
 def has_measurement(depth: np.ndarray) -> bool:
@@ -200,7 +112,7 @@ class Mapper:
         if _rpu is None:
             if folder is not None and has_store(folder):
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
-            _rpu = ReversibleMemory(VoxelMemory(config.geometry.voxel_size, config.channels()), DeltaStore(folder))
+            _rpu = ReversibleMemory(VoxelMemory(config.geometry.voxel_size, memory_channels(config)), DeltaStore(folder))
         self._rpu = _rpu
         if self.config.origin is None and len(_rpu.store):  # a map made before local origins: the world's
             self.config.origin = [0.0, 0.0, 0.0]
@@ -370,9 +282,9 @@ class Mapper:
         ``folder``; revising a frame needs ``frame_source``."""
         folder = Path(folder)
         config = MapperConfig.from_json(mapstore.read_map_config(folder), folder / mapstore.CONFIG_NAME)
-        rpu = ReversibleMemory.load(folder, config.channels(), config.geometry.voxel_size)
+        rpu = ReversibleMemory.load(folder, memory_channels(config), config.geometry.voxel_size)
         specs = tuple(rpu.memory.specs)
-        if specs != config.channels() or rpu.memory.voxel_size != config.geometry.voxel_size:
+        if specs != memory_channels(config) or rpu.memory.voxel_size != config.geometry.voxel_size:
             rpu.close()
             raise PanovoccError(f"memory channels {[s.name for s in specs]} (voxel {rpu.memory.voxel_size} m) do not "
                                 "match config.json", folder / mapstore.MEMORY_NAME)

@@ -39,9 +39,9 @@ from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
-from .config import POSES_SLAM, MapConfig, ReviseConfig, SemanticParams
+from .config import POSES_SLAM, MapConfig, MapperConfig, ReviseConfig, SemanticParams
 from .export import point_colors
-from .mapper import Mapper, MapperConfig
+from .mapper import Mapper
 from .rpu import has_store
 
 CONFIG_NAME = mapstore.CONFIG_NAME

@@ -321,3 +321,44 @@ def test_semantic_stride_run_api_and_revise_exact(seq_dir, tmp_path):
     for i in range(N):
         ref.integrate(dataclasses.replace(frames(i), T_world_cam=T) if i == 3 else frames(i))
     _assert_same_memory(api, ref)
+
+
+def test_one_parser_reads_a_map_config_for_the_run_and_the_mapper(mapped):
+    """A map folder's config.json is read by one parser: the run's config (MapConfig) and the mapper's
+    (MapperConfig, also what Mapper.load reads) accept and refuse the same sections, with the same line."""
+    import copy
+    import json
+
+    from panovocc_cli.mapping.config import MapConfig as RunConfig
+
+    out, cfg, _ = mapped
+    d = json.loads((out / mapstore.CONFIG_NAME).read_text())
+    assert MapperConfig.from_json(d) == cfg.mapper_config()
+    assert MapperConfig.from_json(cfg.mapper_config().to_json()) == cfg.mapper_config()  # Mapper.save's form
+
+    def edit(path, value):
+        e = copy.deepcopy(d)
+        *head, last = path
+        node = e
+        for k in head:
+            node = node[k]
+        if value is KeyError:
+            del node[last]
+        else:
+            node[last] = value
+        return e
+
+    bad = [edit(("geometry", "voxel_size"), True),  # a bool where metres are expected (was read as 1 m)
+           edit(("geometry", "stride"), 4.0),  # a float where a pixel count is expected
+           edit(("geometry", "no_such_key"), 1),
+           edit(("occupancy",), KeyError),
+           edit(("format_version",), "3"),  # a string where the version number is expected
+           edit(("format_version",), 99),
+           edit(("semantic", "no_such_key"), 1),
+           [1, 2]]
+    for e in bad:
+        with pytest.raises(PanovoccError) as run_err:
+            RunConfig.from_json(e, "here/config.json")
+        with pytest.raises(PanovoccError) as mapper_err:
+            MapperConfig.from_json(e, "here/config.json")
+        assert str(run_err.value) == str(mapper_err.value), e
