@@ -2,9 +2,10 @@
 
 Every grid and the mapper share it, so two grids of the same voxel size compare voxel by voxel.
 Keys pack a voxel index (i, j, k) into one int64 (21 bits a signed axis), for hashing and sorting. This
-module is the one definition of that layout: numpy code calls :func:`pack_keys` / :func:`unpack_keys`,
-numba kernels (the memory's block hash, the PSVF extraction, the semantic evidence) build keys from the
-:data:`KEY_BITS`, :data:`KEY_OFFSET`, :data:`KEY_MASK` and :data:`KEY_SHIFT_I` constants below.
+module is the one definition of that layout, :func:`pack_index` / :func:`unpack_index`: numpy code calls
+them through :func:`pack_keys` / :func:`unpack_keys` (which check the range), numba kernels (the
+memory's block hash, the PSVF extraction, the semantic evidence) compile the same two functions
+(``numba.njit(inline="always")(pack_index)``; this module imports no numba, so ``--help`` stays light).
 A map keys its voxels relative to its own origin (:func:`local_origin`, stored in the map's
 ``config.json``), so the range below is a range around the map's origin, not around the world's.
 """
@@ -16,15 +17,21 @@ import numpy as np
 from ..config import LATTICE_TOL
 from ..errors import PanovoccError
 
-_BITS = 21
+_BITS = 21  # a signed axis, stored offset by _OFFSET: k in bits 0-20, j in 21-41, i in 42-62
 _OFFSET = 1 << (_BITS - 1)
 _MASK = (1 << _BITS) - 1
 KEY_RANGE = _OFFSET  # |index| must stay below this (about 84 km at 8 cm)
-KEY_BITS = _BITS
-KEY_OFFSET = _OFFSET
-KEY_MASK = _MASK
-KEY_SHIFT_I = 2 * _BITS  # bit position of the i axis (j at KEY_BITS, k at 0)
 
+
+def pack_index(i, j, k):
+    """The key of voxel ``(i, j, k)`` (int64 scalars or arrays of one shape), unchecked: an index outside
+    ``|index| < KEY_RANGE`` wraps (:func:`pack_keys` refuses it). Keys sort x-major, then y, then z."""
+    return (((i + _OFFSET) & _MASK) << (2 * _BITS)) | (((j + _OFFSET) & _MASK) << _BITS) | ((k + _OFFSET) & _MASK)
+
+
+def unpack_index(key):
+    """Inverse of :func:`pack_index`: the ``(i, j, k)`` of int64 key(s)."""
+    return ((key >> (2 * _BITS)) & _MASK) - _OFFSET, ((key >> _BITS) & _MASK) - _OFFSET, (key & _MASK) - _OFFSET
 
 
 def point_to_index(points, voxel_size: float) -> np.ndarray:
@@ -54,19 +61,12 @@ def pack_keys(index) -> np.ndarray:
     idx = np.asarray(index, dtype=np.int64)
     if idx.size and (np.abs(idx).max() >= _OFFSET):
         raise PanovoccError(f"voxel index out of the lattice's range (|index| < {_OFFSET})")
-    i = (idx[..., 0] + _OFFSET) & _MASK
-    j = (idx[..., 1] + _OFFSET) & _MASK
-    k = (idx[..., 2] + _OFFSET) & _MASK
-    return (i << (2 * _BITS)) | (j << _BITS) | k
+    return pack_index(idx[..., 0], idx[..., 1], idx[..., 2])
 
 
 def unpack_keys(keys) -> np.ndarray:
     """Inverse of :func:`pack_keys`: ``(n,)`` int64 -> ``(n, 3)`` int64 voxel indices."""
-    k = np.asarray(keys, dtype=np.int64)
-    i = ((k >> (2 * _BITS)) & _MASK) - _OFFSET
-    j = ((k >> _BITS) & _MASK) - _OFFSET
-    z = (k & _MASK) - _OFFSET
-    return np.stack([i, j, z], axis=-1)
+    return np.stack(unpack_index(np.asarray(keys, dtype=np.int64)), axis=-1)
 
 
 def bounds_to_grid(lo, hi, voxel_size: float):

@@ -39,7 +39,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
-from ..geometry.lattice import KEY_BITS, KEY_MASK, KEY_OFFSET, KEY_SHIFT_I
+from ..geometry.lattice import pack_index, unpack_index
 
 FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored / FIXED_SCALE
 BLOCK = 8  # voxels per block edge
@@ -51,6 +51,8 @@ FALLBACK_BLOCKS = 1 << 10  # initial blocks where nothing can be reserved (then 
 _MAP_NORESERVE = 0x4000  # Linux mmap flag: no swap reservation for the mapping (mmap lacks the name)
 _I32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
 _I64 = (int(np.iinfo(np.int64).min), int(np.iinfo(np.int64).max))
+_pack = nb.njit(inline="always")(pack_index)  # the lattice's key layout, compiled into the kernels below
+_unpack = nb.njit(inline="always")(unpack_index)
 
 
 @dataclass(frozen=True)
@@ -221,24 +223,15 @@ def _find(table_keys, table_slots, bkey):
 @nb.njit(cache=True, inline="always")
 def _block_key_and_offset(key):
     """A voxel key -> (its block's key, packed like a voxel key from index // 8; the voxel's offset in it)."""
-    i = ((key >> KEY_SHIFT_I) & KEY_MASK) - KEY_OFFSET
-    j = ((key >> KEY_BITS) & KEY_MASK) - KEY_OFFSET
-    z = (key & KEY_MASK) - KEY_OFFSET
-    bkey = (((i >> 3) + KEY_OFFSET) << KEY_SHIFT_I) | (((j >> 3) + KEY_OFFSET) << KEY_BITS) | ((z >> 3) + KEY_OFFSET)
-    o = ((i & 7) << 6) | ((j & 7) << 3) | (z & 7)
-    return bkey, o
+    i, j, k = _unpack(key)
+    return _pack(i >> 3, j >> 3, k >> 3), ((i & 7) << 6) | ((j & 7) << 3) | (k & 7)
 
 
 @nb.njit(cache=True, inline="always")
 def _voxel_key(bkey, o):
     """Inverse of :func:`_block_key_and_offset`."""
-    bi = ((bkey >> KEY_SHIFT_I) & KEY_MASK) - KEY_OFFSET
-    bj = ((bkey >> KEY_BITS) & KEY_MASK) - KEY_OFFSET
-    bz = (bkey & KEY_MASK) - KEY_OFFSET
-    i = bi * 8 + (o >> 6) + KEY_OFFSET
-    j = bj * 8 + ((o >> 3) & 7) + KEY_OFFSET
-    z = bz * 8 + (o & 7) + KEY_OFFSET
-    return (i << KEY_SHIFT_I) | (j << KEY_BITS) | z
+    bi, bj, bk = _unpack(bkey)
+    return _pack(bi * 8 + (o >> 6), bj * 8 + ((o >> 3) & 7), bk * 8 + (o & 7))
 
 
 @nb.njit(cache=True, inline="always")
@@ -248,7 +241,8 @@ def _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots
     Block slots are remembered in a small direct-mapped cache indexed by the block's low (j, k) bits:
     keys in lattice order revisit the same few dozen blocks row after row, so the hash table is probed
     about once per block and frame."""
-    e = (bkey & 7) | ((bkey >> (KEY_BITS - 3)) & 56)  # low 3 bits of the block's k and j indices
+    _, bj, bk = _unpack(bkey)
+    e = (bk & 7) | ((bj & 7) << 3)  # low 3 bits of the block's k and j indices
     if cache_keys[e] == bkey:
         return cache_slots[e], n_blocks
     if n_blocks >= block_keys.shape[0] or 2 * (n_blocks + 1) > table_keys.shape[0]:

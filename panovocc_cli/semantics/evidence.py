@@ -23,7 +23,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
-from ..geometry.lattice import KEY_BITS
+from ..geometry.lattice import pack_index
 from .params import EvidenceWeights  # noqa: F401  (re-export: its public home until now)
 
 
@@ -150,6 +150,8 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
 # ---------------------------------------------------------------------------------------------
 # Compiled kernels of frame_semantic_delta
 
+_pack = nb.njit(inline="always")(pack_index)  # the lattice's key layout, compiled into the kernels
+
 @nb.njit(cache=True, inline="always")
 def _slot(key, bits):
     """Fibonacci hash of a voxel key onto ``bits`` bits (the product's high bits: all key bits mix in)."""
@@ -186,8 +188,6 @@ def _chunk_voxels(depth, rays, werp, range_scale, R, t, h, key_range, nch, lid, 
     H, W = depth.shape
     rows = (H + nch - 1) // nch
     bad = np.zeros(nch, np.bool_)
-    off = key_range
-    mask = 2 * key_range - 1
     for c in nb.prange(nch):
         v0 = min(H, c * rows)
         v1 = min(H, v0 + rows)
@@ -215,7 +215,7 @@ def _chunk_voxels(depth, rays, werp, range_scale, R, t, h, key_range, nch, lid, 
                 i0 = np.int64(f0) if ok and not out else 0
                 i1 = np.int64(f1) if ok and not out else 0
                 i2 = np.int64(f2) if ok and not out else 0
-                key = (((((i0 + off) & mask) << KEY_BITS) | ((i1 + off) & mask)) << KEY_BITS) | ((i2 + off) & mask)
+                key = _pack(i0, i1, i2)
                 kb[u] = key if ok else np.int64(-1)
             for u in range(W):
                 key = kb[u]

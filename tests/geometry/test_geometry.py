@@ -84,6 +84,32 @@ def test_lattice_index_center_and_keys():
         lattice.origin_to_index([0.0, 0.0, 0.0], h)  # a corner, not a centre
 
 
+
+def test_one_key_layout_for_numpy_and_the_kernels():
+    """The kernels compile lattice.pack_index / unpack_index themselves: their keys are pack_keys', in
+    x-major order, to the edges of the range; the memory's block keys are the keys of index // 8."""
+    import numba as nb
+
+    from panovocc_cli.mapping import memory
+
+    r = lattice.KEY_RANGE - 1
+    idx = np.array([[0, 0, 0], [-1, 0, 0], [0, -1, 5], [r, -r, r], [-r, r, -r], [r, r, r], [-r, -r, -r],
+                    [123456, -654321, 7]], np.int64)
+    keys = lattice.pack_keys(idx)
+    pack, unpack = nb.njit(lattice.pack_index), nb.njit(lattice.unpack_index)
+    for (i, j, k), key in zip(idx, keys):
+        assert pack(i, j, k) == key and unpack(key) == (i, j, k)
+        assert memory._pack(i, j, k) == key and memory._unpack(key) == (i, j, k)  # as the kernels compile it
+        assert lattice.pack_index(int(i), int(j), int(k)) == key  # plain Python ints too
+    order = np.lexsort(idx.T[::-1])  # x-major, then y, then z
+    assert np.array_equal(np.argsort(keys), order)
+    for key, (i, j, k) in zip(keys, idx):
+        bkey, o = memory._block_key_and_offset(key)
+        assert bkey == lattice.pack_keys(np.array([[i // 8, j // 8, k // 8]]))[0]
+        assert o == (i % 8) * 64 + (j % 8) * 8 + k % 8 and memory._voxel_key(bkey, o) == key
+    with pytest.raises(PanovoccError, match="range"):
+        lattice.pack_keys(np.array([[lattice.KEY_RANGE, 0, 0]]))
+
 def test_poses_and_quaternions():
     T = look_at([1.0, 2.0, 1.5], [1.0, 0.0, 0.0])
     check_rigid(T)

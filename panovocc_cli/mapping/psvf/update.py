@@ -17,7 +17,7 @@ import numba as nb
 import numpy as np
 
 from ...errors import PanovoccError
-from ...geometry.lattice import KEY_BITS, KEY_OFFSET, KEY_SHIFT_I
+from ...geometry.lattice import pack_index
 from ...runtime import keep_freed_heap  # noqa: F401 (applied by runtime.setup(), not at import)
 from ..freespace import carve
 from ..memory import FIXED_SCALE, Delta
@@ -28,6 +28,8 @@ from .surfel import surfels_for
 
 MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this many voxels
 
+
+_pack = nb.njit(inline="always")(pack_index)  # the lattice's key layout, compiled into _extract
 
 @nb.njit(cache=True)
 def _mark_hits(x, h, lo, hits):
@@ -100,16 +102,13 @@ def _extract(A, hits, F, O, lo, scale, n_fill):
     cnt = counts[nx]
     keys = np.empty(cnt, np.int64)
     out = np.empty((cnt, 4), np.int64)
-    off = KEY_OFFSET  # the key layout of geometry.lattice, hoisted out of the inner loops
     for i in nb.prange(nx):
         n = counts[i]
-        ki = (i + lo[0] + off) << KEY_SHIFT_I
         for j in range(ny):
-            kj = ki | ((j + lo[1] + off) << KEY_BITS)
             for k in range(nz):
                 a, nn, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)
                 if keep:
-                    keys[n] = kj | (k + lo[2] + off)
+                    keys[n] = _pack(i + lo[0], j + lo[1], k + lo[2])
                     out[n, 0] = a
                     out[n, 1] = nn
                     out[n, 2] = F[i, j, k]
