@@ -305,15 +305,6 @@ def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S
                     tz += ddz
 
 
-def _window_sum(x: np.ndarray, axis: int, half: int) -> np.ndarray:
-    """Sum of ``x`` (as int64) over ``[b - half, b + half]`` along ``axis`` (zero outside)."""
-    pad = [(0, 0)] * x.ndim
-    pad[axis] = (half + 1, half)
-    c = np.cumsum(np.pad(x.astype(np.int64), pad), axis=axis)
-    n = x.shape[axis]
-    return np.take(c, np.arange(2 * half + 1, n + 2 * half + 1), axis=axis) - np.take(c, np.arange(n), axis=axis)
-
-
 @nb.njit(cache=True)
 def _row_modes(den, cnt, off, min_points, out_bin, out_pos, out_str):
     """Modes of one column's bins (module docstring, 2); returns how many were written to ``out_*``."""

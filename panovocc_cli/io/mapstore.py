@@ -54,11 +54,6 @@ def delta_path(folder: str | Path, frame_id: int) -> Path:
     return Path(folder) / DELTAS_DIR / f"{frame_stem(int(frame_id))}.npz"
 
 
-def staged_path(path: Path) -> Path:
-    """The staging name of a delta file (``NNNNNN.npz.new``)."""
-    return path.with_name(path.name + STAGED_SUFFIX)
-
-
 def _compact(a: np.ndarray) -> np.ndarray:
     """Smallest signed integer dtype holding ``a`` (deterministic; read back as int64)."""
     if a.size == 0:

@@ -62,16 +62,6 @@ def _project_cam(px, py, pz, H, W):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
-def _project_offset(Rt, cx, cy, cz, H, W):
-    """Range and containing ERP pixel (row, col) of the world offset c - t, rotated into the camera
-    frame (p = R^T (c - t)); the column wraps, the row is clipped."""
-    px = Rt[0, 0] * cx + Rt[0, 1] * cy + Rt[0, 2] * cz
-    py = Rt[1, 0] * cx + Rt[1, 1] * cy + Rt[1, 2] * cz
-    pz = Rt[2, 0] * cx + Rt[2, 1] * cy + Rt[2, 2] * cz
-    return _project_cam(px, py, pz, H, W)
-
-
-@nb.njit(cache=True, inline="always", error_model="numpy")
 def _free_threshold(ro, q0, q1, q2, q3, eps_abs, eps_rel, stable_k, extent, sp, cp, st, ct, dth, dph, h, Rt):
     """A pixel's carving threshold: a voxel at range r projecting into it (and compared) is carved iff
     ``r < ro - eps`` and not ``r > fthr``. ``fthr = -inf`` where the neighbourhood (q0 left, q1 right,
@@ -141,7 +131,7 @@ def _carve(depth, fthr, Rt, t, h, lo, nx, ny, nz, min_range, max_range, eps_abs,
         cx = (i + lo[0] + 0.5) * h - t[0]
         for j in range(ny):
             cy = (j + lo[1] + 0.5) * h - t[1]
-            # p = R^T (c - t), summed left to right as in _project_offset: (a x + b y) + c z
+            # p = R^T (c - t), summed left to right: (a x + b y) + c z
             s0 = r00 * cx + r01 * cy
             s1 = r10 * cx + r11 * cy
             s2 = r20 * cx + r21 * cy
@@ -164,187 +154,8 @@ def _carve(depth, fthr, Rt, t, h, lo, nx, ny, nz, min_range, max_range, eps_abs,
                     F[i, j, k] = 1
 
 
-BLOCK = 8  # hierarchical test: voxels per block edge
-TILE = 8  # pixels per tile edge of the min/max depth-threshold maps
-
-
-def _pixel_thresholds(depth, Rt, h, eps_abs, eps_rel, stable_k, extent):
-    """Per pixel: ``fthr`` (:func:`_free_thresholds`: a voxel at range r projecting here is carved iff
-    r < fthr, and r < ro - eps) and ``othr = ro + eps`` (compared iff r <= othr); -inf = never."""
-    fthr = _free_thresholds(depth, Rt, h, eps_abs, eps_rel, stable_k, extent)
-    ro = depth.astype(np.float64)
-    othr = np.where(depth > 0, ro + (eps_abs + eps_rel * ro), -np.inf)
-    return fthr, othr
-
-
-@nb.njit(cache=True, parallel=True)
-def _tile_minmax(fthr, othr):
-    H, W = fthr.shape
-    th, tw = (H + TILE - 1) // TILE, (W + TILE - 1) // TILE
-    fmin = np.full((th, tw), np.inf)
-    omax = np.full((th, tw), -np.inf)
-    fmax = np.full((th, tw), -np.inf)
-    omin = np.full((th, tw), np.inf)
-    for a in nb.prange(th):
-        for row in range(a * TILE, min(H, (a + 1) * TILE)):
-            for col in range(W):
-                b = col // TILE
-                f, o = fthr[row, col], othr[row, col]
-                fmin[a, b] = min(fmin[a, b], f)
-                fmax[a, b] = max(fmax[a, b], f)
-                omax[a, b] = max(omax[a, b], o)
-                omin[a, b] = min(omin[a, b], o)
-    return fmin, omax, fmax, omin
-
-
-@nb.njit(cache=True)
-def _voxel_test(depth, fthr, Rt, t, h, lo, i, j, k, eps_abs, eps_rel, min_range, max_range, extent, F, O):
-    H, W = depth.shape
-    cx = (i + lo[0] + 0.5) * h - t[0]
-    cy = (j + lo[1] + 0.5) * h - t[1]
-    cz = (k + lo[2] + 0.5) * h - t[2]
-    r, row, col = _project_offset(Rt, cx, cy, cz, H, W)
-    if r < min_range or r > max_range:
-        return
-    ro = depth[row, col]
-    if ro <= 0.0:
-        return
-    eps = eps_abs + eps_rel * ro
-    if r > ro + eps:
-        return
-    O[i, j, k] = 1
-    if extent:
-        if r < ro - eps and r <= fthr[row, col]:
-            F[i, j, k] = 1
-    elif r < fthr[row, col]:
-        F[i, j, k] = 1
-
-
-@nb.njit(cache=True)
-def _block_status(i0, i1, j0, j1, k0, k1, fthr, othr, fmin, omax, fmax, omin, Rt, t, h, lo, H, W, min_range, max_range):
-    """0: undecided; 1: no voxel of the box [i0, i1) x [j0, j1) x [k0, k1) is compared (out of range, or
-    behind every threshold over its angular footprint); 2: every voxel is carved (O = F = 1); 3: every
-    voxel is compared and none carved (O = 1, F = 0)."""
-    two_pi = 2.0 * np.pi
-    tw = fmin.shape[1]
-    cx = (0.5 * (i0 + i1 - 1) + lo[0] + 0.5) * h - t[0]
-    cy = (0.5 * (j0 + j1 - 1) + lo[1] + 0.5) * h - t[1]
-    cz = (0.5 * (k0 + k1 - 1) + lo[2] + 0.5) * h - t[2]
-    rho = 0.5 * h * np.sqrt((i1 - i0 - 1) ** 2 + (j1 - j0 - 1) ** 2 + (k1 - k0 - 1) ** 2) + 1e-9
-    rc = np.sqrt(cx * cx + cy * cy + cz * cz)
-    rmin, rmax = rc - rho - 1e-9, rc + rho + 1e-9
-    if rmax < min_range or rmin > max_range:
-        return 1
-    if rc <= 2.0 * rho:
-        return 0
-    px = Rt[0, 0] * cx + Rt[0, 1] * cy + Rt[0, 2] * cz
-    py = Rt[1, 0] * cx + Rt[1, 1] * cy + Rt[1, 2] * cz
-    pz = Rt[2, 0] * cx + Rt[2, 1] * cy + Rt[2, 2] * cz
-    theta = np.arctan2(px, pz)
-    phi = np.arctan2(-py, np.sqrt(px * px + pz * pz))
-    delta = np.arcsin(rho / rc)
-    r0 = max(int(np.floor((0.5 * np.pi - (phi + delta)) * H / np.pi)) - 1, 0)
-    r1 = min(int(np.floor((0.5 * np.pi - (phi - delta)) * H / np.pi)) + 1, H - 1)
-    c0, c1 = 0, W - 1
-    allcols = True
-    if abs(phi) + delta < 0.5 * np.pi - 1e-6:
-        dlon = np.arcsin(min(1.0, np.sin(delta) / np.cos(abs(phi) + delta)))
-        c0 = int(np.floor((theta - dlon + np.pi) * W / two_pi)) - 1
-        c1 = int(np.floor((theta + dlon + np.pi) * W / two_pi)) + 1
-        if c1 - c0 + 1 < W:
-            allcols = False
-    if (r1 - r0 + 1) * (W if allcols else c1 - c0 + 1) > H * W // 8:
-        return 0
-    fm, om, fx, on = np.inf, -np.inf, -np.inf, np.inf
-    if not allcols and (r1 - r0 + 1) * (c1 - c0 + 1) <= 256:  # small footprint: exact, pixel by pixel
-        for row in range(r0, r1 + 1):
-            for cc in range(c0, c1 + 1):
-                f, o = fthr[row, cc % W], othr[row, cc % W]
-                fm, fx, om, on = min(fm, f), max(fx, f), max(om, o), min(on, o)
-        return _decide(rmin, rmax, fm, om, fx, on, min_range, max_range)
-    for a in range(r0 // TILE, r1 // TILE + 1):
-        if allcols:
-            for b in range(tw):
-                fm = min(fm, fmin[a, b])
-                om = max(om, omax[a, b])
-                fx = max(fx, fmax[a, b])
-                on = min(on, omin[a, b])
-        else:
-            cc = c0
-            while cc <= c1:  # the tiles of the wrapped column range
-                wc = cc % W
-                b = wc // TILE
-                fm = min(fm, fmin[a, b])
-                om = max(om, omax[a, b])
-                fx = max(fx, fmax[a, b])
-                on = min(on, omin[a, b])
-                cc += min((b + 1) * TILE, W) - wc
-    return _decide(rmin, rmax, fm, om, fx, on, min_range, max_range)
-
-
-@nb.njit(cache=True, inline="always")
-def _decide(rmin, rmax, fm, om, fx, on, min_range, max_range):
-    if rmin > om:
-        return 1
-    if rmin >= min_range and rmax <= max_range:
-        if rmax < fm:
-            return 2
-        if rmin > fx and rmax <= on:
-            return 3
-    return 0
-
-
-@nb.njit(cache=True, parallel=True)
-def _carve_hier(depth, fthr, othr, fmin, omax, fmax, omin, Rt, t, h, lo, nx, ny, nz, eps_abs, eps_rel, min_range, max_range,
-                extent, F, O):
-    """Blocks of 8^3, then 4^3, then 2^3 voxels: a block wholly in front of the carving threshold over its
-    angular footprint is carved in bulk, one wholly behind the observed surface (or out of range) is
-    skipped, the rest is split; undecided 2^3 blocks are tested voxel by voxel."""
-    H, W = depth.shape
-    bx, by, bz = (nx + BLOCK - 1) // BLOCK, (ny + BLOCK - 1) // BLOCK, (nz + BLOCK - 1) // BLOCK
-    for blk in nb.prange(bx * by * bz):
-        ib, rem = blk // (by * bz), blk % (by * bz)
-        jb, kb = rem // bz, rem % bz
-        stack = np.empty((64, 4), np.int64)  # (i0, j0, k0, size): depth-first subdivision
-        stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3] = ib * BLOCK, jb * BLOCK, kb * BLOCK, BLOCK
-        top = 1
-        while top > 0:
-            top -= 1
-            i0, j0, k0, sz = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
-            i1, j1, k1 = min(i0 + sz, nx), min(j0 + sz, ny), min(k0 + sz, nz)
-            if i0 >= nx or j0 >= ny or k0 >= nz:
-                continue
-            st = _block_status(i0, i1, j0, j1, k0, k1, fthr, othr, fmin, omax, fmax, omin, Rt, t, h, lo, H, W, min_range,
-                               max_range)
-            if st == 1:
-                continue
-            if st >= 2:
-                f = 1 if st == 2 else 0
-                for i in range(i0, i1):
-                    for j in range(j0, j1):
-                        for k in range(k0, k1):
-                            O[i, j, k] = 1
-                            F[i, j, k] = f
-                continue
-            if sz > 2:
-                hs = sz // 2
-                for q in range(8):
-                    stack[top, 0] = i0 + hs * (q >> 2)
-                    stack[top, 1] = j0 + hs * ((q >> 1) & 1)
-                    stack[top, 2] = k0 + hs * (q & 1)
-                    stack[top, 3] = hs
-                    top += 1
-                continue
-            for i in range(i0, i1):
-                for j in range(j0, j1):
-                    for k in range(k0, k1):
-                        _voxel_test(depth, fthr, Rt, t, h, lo, i, j, k, eps_abs, eps_rel, min_range, max_range,
-                                    extent, F, O)
-
-
 def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.ndarray, shape, eps_abs: float,
-          eps_rel: float, stable_k: float, min_range: float, max_range: float, extent: bool = True,
-          hierarchical: bool = False):
+          eps_rel: float, stable_k: float, min_range: float, max_range: float, extent: bool = True):
     """Free-space test of every voxel of a dense frame-local grid (see module docstring).
 
     Parameters
@@ -354,8 +165,6 @@ def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.
     lo : (3,) int64, lattice index of grid cell [0, 0, 0]; shape : (3,) int
 
     extent : bool, require the voxel's whole box in front of the observed local plane
-    hierarchical : bool, test 8^3 blocks first (bulk-carve blocks wholly in front of the surface over
-        their angular footprint, skip blocks wholly behind it); the same F, O as the exhaustive test
 
     Returns
     -------
@@ -368,13 +177,6 @@ def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.
     t = np.ascontiguousarray(T_world_cam[:3, 3])
     depth = np.ascontiguousarray(depth, dtype=np.float32)
     lo = np.asarray(lo, np.int64)
-    if hierarchical:
-        fthr, othr = _pixel_thresholds(depth, Rt, float(voxel_size), float(eps_abs), float(eps_rel),
-                                       float(stable_k), bool(extent))
-        fmin, omax, fmax, omin = _tile_minmax(fthr, othr)
-        _carve_hier(depth, fthr, othr, fmin, omax, fmax, omin, Rt, t, float(voxel_size), lo, shape[0], shape[1], shape[2],
-                    float(eps_abs), float(eps_rel), float(min_range), float(max_range), bool(extent), F, O)
-        return F, O
     fthr = _free_thresholds(depth, Rt, float(voxel_size), float(eps_abs), float(eps_rel), float(stable_k),
                             bool(extent))
     _carve(depth, fthr, Rt, t, float(voxel_size), lo, shape[0], shape[1], shape[2], float(min_range),

@@ -298,16 +298,6 @@ def load_config(out: str | Path) -> MapConfig:
     return MapConfig.from_json(mapstore.read_map_config(out), Path(out) / CONFIG_NAME)
 
 
-def load_memory(out: str | Path):
-    """A map folder's committed state: (VoxelMemory, frames it holds, their poses (n, 4, 4) float64)."""
-    mapper = Mapper.load(out)
-    try:
-        ids, poses = mapper._rpu.poses()
-        return mapper.memory, len(ids), poses
-    finally:
-        mapper.close()
-
-
 def _remove_unless_started(out: Path) -> None:
     """Remove the output folder this run created when it holds no ``config.json`` (the run failed before
     its first output); a folder that holds one is a resumable run and stays."""

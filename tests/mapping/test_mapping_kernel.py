@@ -1,7 +1,7 @@
 """PSVF kernel shape (equator vs pole) and free-space carving in a closed-form box room."""
 
 import numpy as np
-from box_room import HI, LO, box_depth, turned_pose
+from box_room import HI, LO, box_depth
 from psvf_reference import kernel_inverse_cov, kernel_params, measurement_weight
 
 from panovocc_cli.geometry.erp import ray_directions
@@ -221,22 +221,3 @@ def test_surfel_kernel_closed_form():
     np.testing.assert_allclose(A[tuple(ijk.T)], want, rtol=1e-7, atol=1e-12)
     # the support box of the kernel (half) holds every voxel it reaches: nothing is cut at its faces
     assert A[0].max() == 0 and A[-1].max() == 0 and A[:, 0].max() == 0 and A[:, :, -1].max() == 0
-
-
-def test_hierarchical_carving_equals_exhaustive():
-    """Block-wise bulk carving / skipping gives exactly the per-voxel test's F and O (box room with depth
-    noise and invalid pixels, a rotated and shifted pose, both carving variants)."""
-    W, h = 256, 0.08
-    T = turned_pose()
-    rng = np.random.default_rng(0)
-    depth = box_depth(W, T)
-    depth = (depth + rng.normal(0, 0.01, depth.shape)).astype(np.float32)
-    depth[rng.random(depth.shape) < 0.01] = 0.0
-    lo = np.floor(LO / h).astype(np.int64) - 5
-    shape = np.floor(HI / h).astype(np.int64) + 5 - lo + 1
-    for extent in (True, False):
-        F0, O0 = carve(depth, T, h, lo, shape, 0.07, 0.01, 2.0, 0.1, 12.0, extent, hierarchical=False)
-        F1, O1 = carve(depth, T, h, lo, shape, 0.07, 0.01, 2.0, 0.1, 12.0, extent, hierarchical=True)
-        assert F0.sum() > 10000 and O0.sum() > F0.sum()
-        np.testing.assert_array_equal(F1, F0)
-        np.testing.assert_array_equal(O1, O0)

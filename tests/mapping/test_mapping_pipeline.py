@@ -4,12 +4,13 @@ import json
 
 import numpy as np
 import pytest
+from map_helpers import load_memory
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
 from panovocc_cli.mapping.params import GeometryParams
-from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
+from panovocc_cli.mapping.pipeline import MapConfig, run_map, run_revise
 from room_sequence import ROOM, write_room_sequence
 
 W = 128

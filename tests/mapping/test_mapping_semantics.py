@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from map_helpers import load_memory
 from semantics_helpers import CLASS_NAMES, circle_poses, write_labelled_room
 
 from panovocc_cli.grid import Grid
@@ -11,7 +12,7 @@ from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
 from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.memory import FIXED_SCALE
-from panovocc_cli.mapping.pipeline import MapConfig, load_memory, run_map, run_revise
+from panovocc_cli.mapping.pipeline import MapConfig, run_map, run_revise
 from panovocc_cli.mapping.semantic import SemanticParams, relabel_from_ground_truth
 
 W = 128

@@ -6,6 +6,7 @@ import shutil
 
 import numpy as np
 from cli_helpers import run_cli
+from map_helpers import load_memory
 
 from panovocc_cli.evaluation.trajectory import evaluate_trajectory
 from panovocc_cli.io.poses import read_poses, read_trajectory, write_tum
@@ -15,7 +16,7 @@ from panovocc_cli.io.sequence import Sequence
 def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_path, capsys):
     from panovocc_cli.mapping import Mapper
     from panovocc_cli.mapping.config import MapConfig
-    from panovocc_cli.mapping.pipeline import load_config, load_memory, sequence_frames
+    from panovocc_cli.mapping.pipeline import load_config, sequence_frames
     from panovocc_cli.slam import SlamParams
     from panovocc_cli.slam.run import run_map_slam
 
