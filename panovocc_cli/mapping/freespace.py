@@ -26,39 +26,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..geometry.erp import trig_tables
-
-
-@nb.njit(cache=True, inline="always", error_model="numpy")
-def _atan2(y, x):
-    """atan2 by a minimax polynomial (|error| < 1e-5 rad, 1/600 of a pixel at 1024 wide); deterministic.
-
-    Written with selects, no branches, so that loops calling it vectorise (same values either way)."""
-    ax, ay = abs(x), abs(y)
-    mx = max(ax, ay)
-    a = min(ax, ay) / mx  # NaN when x = y = 0, replaced below
-    s = a * a
-    r = ((((-0.0117212 * s + 0.05265332) * s - 0.11643287) * s + 0.19354346) * s - 0.33262347) * s * a + 0.99997726 * a
-    r = 0.5 * np.pi - r if ay > ax else r
-    r = np.pi - r if x < 0.0 else r
-    r = -r if y < 0.0 else r
-    return 0.0 if mx == 0.0 else r
-
-
-@nb.njit(cache=True, inline="always", error_model="numpy")
-def _project_cam(px, py, pz, H, W):
-    """Range and containing ERP pixel (row, col) of camera-frame point p; the column wraps, the row is
-    clipped. Branch-free (see :func:`_atan2`)."""
-    r = np.sqrt(px * px + py * py + pz * pz)
-    theta = _atan2(px, pz)
-    phi = _atan2(-py, np.sqrt(px * px + pz * pz))
-    col = int(np.floor((theta + np.pi) * W / (2.0 * np.pi)))  # in [0, W] since theta is in [-pi, pi]
-    col = col - W if col >= W else col
-    col = col + W if col < 0 else col
-    row = int(np.floor((0.5 * np.pi - phi) * H / np.pi))
-    row = 0 if row < 0 else row
-    row = H - 1 if row >= H else row
-    return r, row, col
+from ..geometry.erp import cam_pixel, trig_tables
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
@@ -137,7 +105,7 @@ def _carve(depth, fthr, Rt, t, h, lo, nx, ny, nz, min_range, max_range, eps_abs,
             s2 = r20 * cx + r21 * cy
             for k in range(nz):
                 cz = czs[k]
-                rr[k], rows[k], cols[k] = _project_cam(s0 + r02 * cz, s1 + r12 * cz, s2 + r22 * cz, H, W)
+                rr[k], rows[k], cols[k] = cam_pixel(s0 + r02 * cz, s1 + r12 * cz, s2 + r22 * cz, H, W)
             for k in range(nz):
                 r = rr[k]
                 if r < min_range or r > max_range:

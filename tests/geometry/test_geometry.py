@@ -68,6 +68,23 @@ def test_erp_size_checks():
     assert erp.check_erp_size(1024) == (1024, 512)
 
 
+
+def test_compiled_projection_is_project_to_pixel():
+    """erp.cam_pixel (the free-space test's projection, polynomial atan2) gives project_to_pixel's pixel and
+    range, but where a point lies within the polynomial's error (1e-5 rad) of a pixel border."""
+    H, W = 256, 512
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(20000, 3)) * rng.uniform(0.2, 9.0, size=(20000, 1))
+    pts[:4] = [[0, 0, 1], [0, 0, -1], [0, -2, 0], [0, 3, 0]]  # ahead, straight back, zenith, nadir
+    row, col, r = erp.project_to_pixel(pts, W, H)
+    got = np.array([erp.cam_pixel(x, y, z, H, W) for x, y, z in pts])
+    np.testing.assert_allclose(got[:, 0], r, rtol=1e-12)
+    u, v, _ = erp.project(pts, W, H)
+    border = 1e-5 * np.array([W, H]) / (2 * np.pi)  # the polynomial's error, in pixels
+    near = (np.abs((u + 0.5) - np.round(u + 0.5)) < border[0]) | (np.abs((v + 0.5) - np.round(v + 0.5)) < border[1])
+    same = (got[:, 1] == row) & (got[:, 2] == col)
+    assert same[~near].all() and (~near).sum() > 19000
+
 def test_lattice_index_center_and_keys():
     h = 0.08
     pts = np.array([[0.0, 0.0, 0.0], [0.079999, -0.0001, 1.0], [-3.2, 5.1, 2.4]])
