@@ -64,7 +64,7 @@ def run_demo(cfg: DemoConfig, log=sys.stderr) -> dict:
     from .io.atomic import check_output
     from .io.runconfig import CONFIG_NAME, write_run_config
     from .mapping.pipeline import MapConfig, run_map
-    from .mapping.semantic import SemanticParams
+    from .mapping.config import SemanticParams
     from .rendering.render import RenderConfig, run_render
 
     cfg = check_demo_config(cfg)

@@ -21,7 +21,8 @@ def _configs():
                                              EvalConfig, ShowConfig)
     from panovocc_cli.gt_config import GtConfig
     from panovocc_cli.mapping.bench import BenchConfig
-    from panovocc_cli.mapping.config import MapConfig, ReviseConfig, SegevalConfig
+    from panovocc_cli.evaluation.segeval import SegevalConfig
+    from panovocc_cli.mapping.config import MapConfig, ReviseConfig
     from panovocc_cli.rendering.render import RenderConfig
 
     return [SynthConfig, DemoConfig, ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig, EvalConfig,

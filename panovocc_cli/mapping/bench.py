@@ -6,7 +6,7 @@ with labels, ``frames`` frames (rendered once into OUT and reused).
 Two kinds of figures, each a ratio measured in one run:
 
 * **update only** (ms/frame, in-memory frames, no file I/O): the geometric update (PSVF kernel +
-  free-space test + delta extraction + memory add), the semantic update (:func:`.semantic.semantic_delta`
+  free-space test + delta extraction + memory add), the semantic update (:func:`.contributors.semantic_delta`
   from precomputed logits + memory add) and the simulated segmenter's own cost (``logits``); and
   Open3D's ``VoxelBlockGrid`` TSDF integrate (each panorama as 6 cube-face pinhole views, 90 degrees,
   W/4 pixels square, z-depth, nearest-pixel resampling, cut untimed; voxel and block size as ours
@@ -160,12 +160,12 @@ def panovocc_update_pass(depths, poses, geo):
 
 
 def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int, weights):
-    """A callable that runs the semantic update (:func:`.semantic.semantic_delta` from the given logits,
+    """A callable that runs the semantic update (:func:`.contributors.semantic_delta` from the given logits,
     then :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
     (one warm-up pass first). ``weights``: the map command's resolved EvidenceWeights (its stride)."""
     from ..geometry.erp import ray_directions
     from .memory import VoxelMemory
-    from .semantic import semantic_channels, semantic_delta
+    from .contributors import semantic_channels, semantic_delta
 
     rays = ray_directions(depths[0].shape[1])
 

@@ -1,5 +1,5 @@
-"""The configs of ``panovocc map``, ``revise`` and ``segeval`` and of the :class:`~.mapper.Mapper`, in a
-module that imports nothing heavy.
+"""The configs of ``panovocc map`` and ``revise`` and of the :class:`~.mapper.Mapper`, in a module that
+imports nothing heavy.
 
 ``panovocc --help`` builds every command's options from the stage configs (cli/options.py), so the
 modules holding them import only the standard library, numpy, numpy-free parameter modules
@@ -24,6 +24,7 @@ from ..errors import PanovoccError
 from ..geometry.lattice import local_origin
 from ..semantics.gsc import GSCParams
 from ..semantics.params import EvidenceWeights
+from ..semantics.registry import SEGMENTER_AUTO, SEGMENTER_NONE
 from .ablation import AblationParams
 from .params import KERNELS, RADIAL, RULES, GeometryParams, OccupancyParams
 
@@ -31,8 +32,6 @@ FORMAT_VERSION = 3  # of a map folder; 2: semantic section (a version-1 config i
 # fitted surfels, N = frames with a measurement, occupancy rule
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
-SEGMENTER_NONE = "none"
-SEGMENTER_AUTO = "auto"
 PLY_COLORS = ("class", "rgb", "height")
 
 
@@ -92,20 +91,6 @@ class SemanticParams:
         gsc = dataclasses.replace(mapper_gsc_params(), **d.pop("gsc", {}))
         weights = EvidenceWeights(**d.pop("weights", {}))
         return cls(gsc=gsc, weights=weights, **d)
-
-
-@dataclass
-class SegevalConfig:
-    """``panovocc segeval``: the segmenter's own per-frame 2D mIoU on a labelled sequence."""
-
-    seq: str = option(cli_type=Path, parse=str, argument=True, metavar="SEQ",
-                      help="Sequence folder with ground-truth labels (semantic/).")
-    segmenter: str = option("simulated", help="Segmenter to score: simulated | precomputed:DIR.")
-    vocab: object = option(None, cli_type=str, help="Vocabulary (as for map); default eval8,open4.")
-    noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
-    classes: str = option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c).")
-    every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
 
 
 def parse_origin(text) -> list[float]:

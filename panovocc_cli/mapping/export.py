@@ -11,19 +11,28 @@ Two decision rules (``OccupancyParams.rule``; defaults and reasons: docs/mapping
 
 An unoccupied voxel is free (0) when some frame carved it (F > 0) and unobserved (255) otherwise. The
 score g is exported either way (the semantic consolidation uses it).
+
+Labels (:func:`label_occupied`): the occupied set comes from the geometry alone; over it,
+``gsc.unaries`` (E/S, mean normal, mean colour), the mapper's signed score ``g`` and
+``gsc.consolidate`` give a vocabulary index or -1 (grid label 254).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
+from ..classes import class_color
 from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
+from ..semantics.gsc import consolidate, unaries
 from .memory import FIXED_SCALE
 from .params import RULES, OccupancyParams
+
+UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
 
 
 def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:
@@ -158,12 +167,57 @@ class MapExport:
         return out
 
 
+def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params) -> np.ndarray:
+    """Vocabulary index of each occupied voxel, or -1 (no class; exported as 254).
+
+    Parameters
+    ----------
+    occupied_keys : (n,) int64 voxel keys (lattice.pack_keys)
+    channels : dict of the occupied voxels' stored channels, rows aligned with ``occupied_keys``:
+        E (n, C), S (n, 1), normal_sum (n, 3) fixed point; rgb_sum (n, 3), count (n, 1) int64
+    g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
+    params : object with ``use_gsc`` and ``gsc`` (``MapperConfig`` or ``SemanticParams``)
+
+    Returns
+    -------
+    labels : (n,) int64 in -1..C-1
+    """
+    n = len(occupied_keys)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    E = channels["E"] / FIXED_SCALE
+    S = channels["S"][:, 0] / FIXED_SCALE
+    p, normals, colors = unaries(E, S, channels["normal_sum"] / FIXED_SCALE, channels["rgb_sum"], channels["count"][:, 0])
+    return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
+                       use_gsc=params.use_gsc, params=params.gsc)
+
+
+def apply_labels(grid: Grid, occupied_keys: np.ndarray, labels: np.ndarray, vocab: Sequence[str]) -> Grid:
+    """Write class labels into a three-state grid: occupied voxel -> 1 + label (254 where -1).
+
+    The grid's class names become ``["empty"] + vocab``; free (0) and unobserved (255) voxels stay.
+    """
+    out = grid.labels.copy()
+    if len(occupied_keys):
+        local = unpack_keys(occupied_keys) - grid.index0
+        lab = np.asarray(labels, np.int64)
+        out[tuple(local.T)] = np.where(lab >= 0, lab + 1, OCCUPIED_UNKNOWN_CLASS).astype(np.uint8)
+    return Grid(out, grid.origin, grid.voxel_size, ["empty"] + list(vocab))
+
+
+def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
+    """(n, 3) uint8 colours: :func:`classes.class_color` of each label, grey for -1."""
+    table = np.array([class_color(c) for c in vocab] + [UNCLASSED_COLOR], np.uint8).reshape(-1, 3)
+    lab = np.asarray(labels, np.int64)
+    return table[np.where(lab >= 0, lab, len(vocab))]
+
+
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
                   vocab=(), semantic=None, origin_index=(0, 0, 0)) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
-    semantic channels, each occupied voxel is labelled by :func:`semantic.label_occupied` (GSC or raw
+    semantic channels, each occupied voxel is labelled by :func:`label_occupied` (GSC or raw
     argmax, bounded nearest-evidence transfer), -1 -> 254.
 
     Parameters
@@ -176,8 +230,6 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     origin_index : (3,) int64, the lattice index the keys are relative to (the map's local origin); the
         grid is placed in the world by it
     """
-    from .semantic import apply_labels, label_occupied
-
     grid, occ_keys, occ, g = _grid_of(keys, channels, voxel_size, occupancy)
     pos = np.flatnonzero(occ)
     # a memory's channels are read at the occupied voxels only (not copied for every voxel first)
@@ -199,8 +251,6 @@ def point_colors(ex: MapExport, voxel_size: float, color: str, vocab=()) -> tupl
     color : ``class`` (class colours, grey for no class), ``rgb`` (mean pixel colour, grey where no pixel
         fell in the voxel) or ``height``; ``class`` / ``rgb`` fall back to height without semantic channels.
     """
-    from .semantic import UNCLASSED_COLOR, class_colors
-
     pts, cols = occupied_points_and_colors(ex.occupied_keys, voxel_size, None, ex.origin_index)
     if color == "class" and ex.labels is not None:
         cols = class_colors(ex.labels, vocab)

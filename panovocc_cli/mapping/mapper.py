@@ -15,7 +15,7 @@
 The mapper never opens an input file: a frame's arrays come in a :class:`~panovocc_cli.frame.Frame`, and
 a segmenter, if any, runs before (its logits travel in the frame). Each frame's delta is the geometry
 contributor's (:func:`.contributors.geometry_delta`: PSVF support, free space) and, when the frame
-carries logits and the configuration a vocabulary, the semantic one (:func:`.semantic.semantic_delta`),
+carries logits and the configuration a vocabulary, the semantic one (:func:`.contributors.semantic_delta`),
 kept as two parts over their own voxels (:class:`~.memory.FrameDelta`).
 The deltas are kept by the reversible persistent update (:mod:`.rpu`), so the memory is always their exact
 integer sum.
@@ -48,11 +48,10 @@ from ..grid import Grid
 from ..io import mapstore
 from ..io.poses import write_poses
 from .config import MapperConfig
-from .contributors import geometry_delta
+from .contributors import geometry_delta, semantic_channels, semantic_delta
 from .export import MapExport, export_memory
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
 from .rpu import DeltaStore, ReversibleMemory, has_store
-from .semantic import semantic_channels, semantic_delta
 
 
 def memory_channels(config: MapperConfig) -> tuple[ChannelSpec, ...]:

@@ -39,7 +39,8 @@ from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
-from .config import POSES_SLAM, MapConfig, MapperConfig, ReviseConfig, SemanticParams
+from .config import (PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig, MapperConfig, ReviseConfig,
+                     SemanticParams)
 from .export import point_colors
 from .mapper import Mapper
 from .rpu import has_store
@@ -49,14 +50,39 @@ MEMORY_NAME = mapstore.MEMORY_NAME
 
 
 def resolve_semantic(p: SemanticParams, seq: Sequence) -> SemanticParams:
-    """:func:`semantic.resolve` with the Python API's lenient ``auto``: simulated when the sequence has
-    labels, else ``none`` (geometry only). The ``map`` command refuses an unlabelled sequence without an
-    explicit ``--segmenter`` instead (see cli/map_cmds.py)."""
-    from .semantic import SEGMENTER_AUTO, SEGMENTER_NONE, resolve as resolve_sem
+    """Resolve the segmenter spec, the vocabulary and a precomputed folder against the sequence to be
+    mapped; validate everything before any file is written.
 
-    if p.segmenter.strip() == SEGMENTER_AUTO and not seq.has_labels:
-        p = dataclasses.replace(p, segmenter=SEGMENTER_NONE)
-    return resolve_sem(p, seq)
+    ``auto`` is the simulated segmenter when the sequence has ``semantic/`` labels, else ``none``
+    (geometry only): the Python API's leniency; the ``map`` command refuses an unlabelled sequence
+    without an explicit ``--segmenter`` instead (cli/map_cmds.py).
+
+    Raises
+    ------
+    PanovoccError
+        Empty/invalid vocabulary, unknown segmenter, negative noise, ``simulated`` on a sequence without
+        labels, a precomputed folder that fails validation, bad ply_color.
+    """
+    from ..classes import parse_vocab
+    from ..semantics.registry import SIMULATED, build_segmenter, is_simulated
+
+    if p.ply_color not in PLY_COLORS:
+        raise PanovoccError(f"--ply-color must be one of {', '.join(PLY_COLORS)}, got {p.ply_color!r}")
+    # an empty vocabulary is an error even for --segmenter none; 'all' = the sequence's classes
+    vocab = parse_vocab(p.vocab, seq.meta.class_names if seq.has_labels else None, what="vocabulary (--vocab)")
+    spec = p.segmenter.strip()
+    if spec == SEGMENTER_AUTO:
+        spec = SIMULATED if seq.has_labels else SEGMENTER_NONE
+    if spec == SEGMENTER_NONE:
+        return dataclasses.replace(p, segmenter=SEGMENTER_NONE, vocab=[])
+    if is_simulated(spec) and not seq.has_labels:
+        raise PanovoccError("the simulated segmenter needs ground-truth labels (semantic/), which this sequence "
+                            "lacks: pass --segmenter precomputed:DIR or --segmenter none", seq.root)
+    if spec.startswith("precomputed:"):
+        folder = spec[len("precomputed:"):]
+        spec = "precomputed:" + (str(Path(folder).resolve()) if folder else "")
+    seg = build_segmenter(spec, seed=int(p.seed), noise=float(p.noise))  # validates spec, noise, folder
+    return dataclasses.replace(p, segmenter=seg.spec or spec, vocab=list(vocab))
 
 
 def auto_stride(width: int) -> int:

@@ -8,6 +8,9 @@ Specs (``--segmenter``):
 * ``precomputed:DIR``: per-frame scores another model wrote (:mod:`.precomputed`).
 * ``clip`` or ``clip:MODEL@WEIGHTS[,options]`` / ``clip:FOLDER[,options]``: the training-free dense CLIP
   segmenter (NACLIP's recipe) on tiles of the panorama (:mod:`.clip`; optional extra ``.[clip]``).
+
+Two more specs name no segmenter: ``none`` (:data:`SEGMENTER_NONE`, a geometry-only map) and ``auto``
+(:data:`SEGMENTER_AUTO`, the map command's default: ``simulated`` where the sequence has labels).
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from .segmenter import Segmenter
 SIMULATED = "simulated"
 PRECOMPUTED = "precomputed:"
 CLIP = "clip"
+SEGMENTER_NONE = "none"
+SEGMENTER_AUTO = "auto"
 
 
 def build_segmenter(spec: str = SIMULATED, *, seed: int = DEFAULT_SEED, noise: float = 1.0,

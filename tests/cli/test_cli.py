@@ -68,7 +68,7 @@ def test_options_are_declared_once_on_the_config():
     from panovocc_cli.datasets.synth import SynthConfig
     from panovocc_cli.mapping.params import GeometryParams, OccupancyParams
     from panovocc_cli.mapping.pipeline import MapConfig
-    from panovocc_cli.mapping.semantic import SemanticParams
+    from panovocc_cli.mapping.config import SemanticParams
     from panovocc_cli.rendering.render import RenderConfig
 
     cmds = dict(_commands())

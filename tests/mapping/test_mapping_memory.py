@@ -135,7 +135,7 @@ def test_empty_delta_and_all_zero_depth_frame():
 
 
 def _semantic_specs(C=4):
-    from panovocc_cli.mapping.semantic import semantic_channels
+    from panovocc_cli.mapping.contributors import semantic_channels
 
     return memory.GEOMETRY_CHANNELS + semantic_channels(C)
 

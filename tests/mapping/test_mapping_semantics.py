@@ -13,7 +13,8 @@ from panovocc_cli.io.poses import write_poses
 from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.memory import FIXED_SCALE
 from panovocc_cli.mapping.pipeline import MapConfig, run_map, run_revise
-from panovocc_cli.mapping.semantic import SemanticParams, relabel_from_ground_truth
+from panovocc_cli.evaluation.reference import relabel_from_ground_truth
+from panovocc_cli.mapping.config import SemanticParams
 
 W = 128
 N = 6

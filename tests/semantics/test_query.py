@@ -109,7 +109,7 @@ def room_map(tmp_path_factory):
     import panovocc_cli.runtime
     from panovocc_cli.mapping.config import MapConfig
     from panovocc_cli.mapping.pipeline import run_map
-    from panovocc_cli.mapping.semantic import SemanticParams
+    from panovocc_cli.mapping.config import SemanticParams
 
     panovocc_cli.runtime.setup()
     root = tmp_path_factory.mktemp("querymap")

@@ -187,7 +187,7 @@ def test_compiled_delta_matches_numpy_reference(width, yaw, voxel, stride, strid
     pixels (s i, s j) weighing s^2, from full-size logits or logits given at the stride (width 250 with
     s = 3: 84 x 42 measurements, the last row and column partial).
     """
-    from panovocc_cli.mapping.semantic import quantize_semantic_delta
+    from panovocc_cli.mapping.contributors import quantize_semantic_delta
 
     T = pose(yaw=yaw)
     lab, depth, rgb = render_room(width, T)
