@@ -20,7 +20,7 @@ def _configs():
     from panovocc_cli.evaluation.run import (ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig,
                                              EvalConfig, ShowConfig)
     from panovocc_cli.gt_config import GtConfig
-    from panovocc_cli.mapping.bench import BenchConfig
+    from panovocc_cli.benchmark.bench import BenchConfig
     from panovocc_cli.evaluation.segeval import SegevalConfig
     from panovocc_cli.mapping.config import MapConfig, ReviseConfig
     from panovocc_cli.rendering.render import RenderConfig

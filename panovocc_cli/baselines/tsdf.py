@@ -31,7 +31,7 @@ from ..geometry.cameras import PinholeCamera
 from ..geometry.lattice import index_to_center, pack_keys, point_to_index, unpack_keys
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 
-#: TSDF truncation in voxels (the value ``panovocc bench``'s Open3D run uses: mapping/bench.py).
+#: TSDF truncation in voxels (``panovocc bench``'s Open3D run uses it too: benchmark/bench.py).
 TRUNC_VOXELS = 3.0
 #: Open3D's voxel blocks are 8^3 voxels.
 BLOCK_RESOLUTION = 8

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from ..errors import PanovoccError
-from ..mapping.bench import BenchConfig
+from ..benchmark.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
 from ..mapping.ablation import AblationParams
 from ..evaluation.segeval import SegevalConfig
@@ -111,7 +111,7 @@ def segeval(o: OptionValues, quiet: bool = typer.Option(False, "--quiet", help="
 @config_command(app, BenchConfig, "bench", only=("out", "frames", "width"))
 def bench(o: OptionValues) -> None:
     """Mapper speed against Open3D VoxelBlockGrid TSDF fusion (cube faces) on the same frames."""
-    from ..mapping.bench import run_bench
+    from ..benchmark.bench import run_bench
 
     r = run_bench(BenchConfig(**o))
     typer.echo(r["line"])

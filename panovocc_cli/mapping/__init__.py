@@ -1,6 +1,7 @@
-"""Mapping: the streaming :class:`Mapper` (frames from memory -> semantic occupancy grid), the reversible
-per-frame delta store (``rpu``), the hashed voxel memory, the PSVF kernel, free-space carving, export,
-and the ``map`` / ``revise`` / ``bench`` run loops (``pipeline``).
+"""Mapping: the streaming :class:`Mapper` (frames from memory -> semantic occupancy grid), its config
+(``config``), the reversible per-frame delta store (``rpu``), the hashed voxel memory, the per-frame
+contributors (the PSVF kernel and free-space carving, the semantic evidence), export, and the ``map`` /
+``revise`` run loops (``pipeline``).
 
 numba's threading layer is chosen in ``panovocc_cli/__init__.py`` (OpenMP first, never TBB first)."""
 

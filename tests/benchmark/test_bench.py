@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from panovocc_cli.errors import PanovoccError
-from panovocc_cli.mapping.bench import BenchConfig, cube_face_maps, cube_faces, run_bench
+from panovocc_cli.benchmark.bench import BenchConfig, cube_faces, cube_sampler, run_bench
 
 
 @pytest.mark.slow
@@ -26,12 +26,17 @@ def test_bench_end_to_end(tmp_path):
 
 
 def test_cube_faces_cover_the_panorama():
-    """Every face pixel samples the ERP image; a constant radial depth r gives z = r / |ray|."""
-    maps = cube_face_maps(64, 128, 32)
-    faces, K = cube_faces(np.full((64, 128), 2.0, np.float32), 32, maps)
-    assert len(faces) == 6 and K[0, 0] == 16
+    """Every face pixel samples the ERP image; a constant radial depth r gives z = r / |ray|; the faces look
+    along +z, +x, -z, -x, up (-y) and down (+y) of the panorama."""
+    sampler = cube_sampler(128)
+    faces, K = cube_faces(np.full((64, 128), 2.0, np.float32), sampler)
+    assert len(faces) == 6 and K[0, 0] == pytest.approx(16) and K[0, 2] == 15.5
     for R, z in faces:
-        assert z.shape == (32, 32) and np.all(z <= 2.0) and np.all(z >= 2.0 / np.sqrt(3) - 1e-6)
+        assert z.dtype == np.float32 and z.shape == (32, 32)
+        assert np.all(z <= 2.0) and np.all(z >= 2.0 / np.sqrt(3) - 1e-6)
+        assert np.allclose(R.T @ R, np.eye(3))
+    axes = np.array([R[:, 2] for R, _ in faces])
+    assert np.array_equal(axes, [[0, 0, 1], [1, 0, 0], [0, 0, -1], [-1, 0, 0], [0, -1, 0], [0, 1, 0]])
     seen = np.zeros((64, 128), bool)
-    seen[maps[1], maps[2]] = True
+    seen[sampler.row, sampler.col] = True
     assert seen.mean() > 0.5

@@ -1,9 +1,9 @@
-"""The Open3D side of ``panovocc bench``'s whole-process comparison: ``python -m panovocc_cli.mapping.o3d_tsdf
+"""The Open3D side of ``panovocc bench``'s whole-process comparison: ``python -m panovocc_cli.benchmark.o3d_tsdf
 SEQ OUT [--voxel-size H] [--depth-max M]``.
 
 What a user of Open3D's ``VoxelBlockGrid`` TSDF fusion runs on a panoramic sequence: read each frame's
 depth file and pose, cut the panorama into 6 cube-face pinhole views (:func:`.bench.cube_faces`), integrate
-them (CPU, block resolution 8, truncation :data:`.bench.TRUNC_VOXELS` voxels), extract the surface point
+them (CPU, block resolution 8, truncation :data:`panovocc_cli.baselines.tsdf.TRUNC_VOXELS` voxels), extract the surface point
 cloud and write it to ``OUT/o3d_tsdf.ply``. Timed as a whole process by :func:`.bench.run_bench`.
 """
 
@@ -18,7 +18,7 @@ from ..config import DEFAULT_VOXEL_SIZE
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m panovocc_cli.mapping.o3d_tsdf", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m panovocc_cli.benchmark.o3d_tsdf", description=__doc__.splitlines()[0])
     ap.add_argument("seq")
     ap.add_argument("out")
     ap.add_argument("--voxel-size", type=float, default=DEFAULT_VOXEL_SIZE)
@@ -28,21 +28,20 @@ def main(argv=None) -> int:
     import open3d as o3d
     import open3d.core as o3c
 
+    from ..baselines.tsdf import TRUNC_VOXELS
     from ..io.sequence import Sequence
-    from .bench import TRUNC_VOXELS, cube_face_maps, cube_faces
+    from .bench import cube_faces, cube_sampler
 
     seq = Sequence(a.seq)
-    H, W = seq.meta.height, seq.meta.width
-    face = W // 4
-    maps = cube_face_maps(H, W, face)
-    Kt = o3c.Tensor(maps[4], o3c.float64)
+    sampler = cube_sampler(seq.meta.width)
+    Kt = o3c.Tensor(sampler.rig[0].camera.K, o3c.float64)
     # a colour attribute, left at zero (depth-only integration): this Open3D's extract_point_cloud fails without one
     vbg = o3d.t.geometry.VoxelBlockGrid(attr_names=("tsdf", "weight", "color"),
                                         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32), attr_channels=((1), (1), (3)), voxel_size=a.voxel_size, block_resolution=8,
                                         block_count=100000, device=o3c.Device("CPU:0"))
     for i in range(len(seq)):
         T = seq.poses[i]
-        faces, _ = cube_faces(seq.depth(i), face, maps)
+        faces, _ = cube_faces(seq.depth(i), sampler)
         for R, z in faces:
             T_face = np.eye(4)
             T_face[:3, :3] = T[:3, :3] @ R

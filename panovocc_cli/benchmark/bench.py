@@ -6,16 +6,18 @@ with labels, ``frames`` frames (rendered once into OUT and reused).
 Two kinds of figures, each a ratio measured in one run:
 
 * **update only** (ms/frame, in-memory frames, no file I/O): the geometric update (PSVF kernel +
-  free-space test + delta extraction + memory add), the semantic update (:func:`.contributors.semantic_delta`
+  free-space test + delta extraction + memory add), the semantic update
+  (:func:`panovocc_cli.mapping.contributors.semantic_delta`
   from precomputed logits + memory add) and the simulated segmenter's own cost (``logits``); and
   Open3D's ``VoxelBlockGrid`` TSDF integrate (each panorama as 6 cube-face pinhole views, 90 degrees,
   W/4 pixels square, z-depth, nearest-pixel resampling, cut untimed; voxel and block size as ours
-  (8^3), depth_max = our max_range, truncation 3 voxels (TRUNC_VOXELS)). Each pass integrates every
+  (8^3), depth_max = our max_range, truncation :data:`~panovocc_cli.baselines.tsdf.TRUNC_VOXELS` voxels, the
+  persp-tsdf baseline's). Each pass integrates every
   frame into a fresh map; one untimed warm-up, then ``repeats`` passes of each, interleaved so that load
   from other jobs hits all alike; medians.
 * **whole process** (seconds, a fresh Python process each, from its start to its files written):
   ``python -m panovocc_cli map SEQ OUT`` with semantics (the default simulated segmenter) and with
-  ``--segmenter none``, against ``python -m panovocc_cli.mapping.o3d_tsdf SEQ OUT`` (read the same
+  ``--segmenter none``, against ``python -m panovocc_cli.benchmark.o3d_tsdf SEQ OUT`` (read the same
   frame files, cut the cube faces, integrate, extract the surface point cloud, write it). Interleaved,
   ``process_repeats`` runs of each, medians. The numba caches are warm (one untimed run first).
 """
@@ -34,8 +36,6 @@ from ..errors import PanovoccError
 from ..io.atomic import write_text
 from ..io.sequence import Sequence, read_meta
 
-TRUNC_VOXELS = 3.0  # Open3D TSDF truncation, voxels (its default is 8; 3 is the usual TSDF setting)
-
 
 @dataclass
 class BenchConfig:
@@ -50,56 +50,26 @@ class BenchConfig:
     process_repeats: int = option(5, min=1, help="Timed whole-process runs of each command (median reported).")
 
 
-def cube_face_maps(height: int, width: int, face: int):
-    """Where each pixel of the 6 pinhole cube faces samples an ERP image (nearest pixel).
+def cube_sampler(width: int):
+    """Where each pixel of the six 90-degree cube faces (``width / 4`` pixels square) of an ERP image
+    ``width`` wide samples it: a :class:`~panovocc_cli.baselines.views.ViewSampler` of
+    :meth:`ViewRig.cube <panovocc_cli.geometry.cameras.ViewRig.cube>` (nearest pixel)."""
+    from ..baselines.views import ViewSampler
+    from ..geometry.cameras import ViewRig
 
-    Returns
-    -------
-    rotations : list of 6 (3, 3) float64 R_cam_face
-    rows, cols : (6, face, face) int64 ERP pixel of each face pixel
-    norms : (6, face, face) float64, length of the face ray (z = 1): z-depth = radial depth / norm
-    K : (3, 3) float64 intrinsics of every face (90 degree field of view)
-    """
-    H, W = height, width
-    f = face / 2.0
-    K = np.array([[f, 0, face / 2 - 0.5], [0, f, face / 2 - 0.5], [0, 0, 1.0]])
-    u, v = np.meshgrid(np.arange(face), np.arange(face))
-    dirs = np.stack([(u - K[0, 2]) / f, (v - K[1, 2]) / f, np.ones((face, face))], -1)
-
-    def rot_y(a):
-        c, s = np.cos(a), np.sin(a)
-        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-    def rot_x(a):
-        c, s = np.cos(a), np.sin(a)
-        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-    rots, rows, cols, norms = [], [], [], []
-    for R in (rot_y(0), rot_y(np.pi / 2), rot_y(np.pi), rot_y(-np.pi / 2), rot_x(np.pi / 2), rot_x(-np.pi / 2)):
-        d = dirs @ R.T
-        n = np.linalg.norm(d, axis=-1)
-        theta = np.arctan2(d[..., 0], d[..., 2])
-        phi = -np.arcsin(d[..., 1] / n)
-        cols.append(np.floor((theta + np.pi) * W / (2 * np.pi)).astype(np.int64) % W)
-        rows.append(np.clip(np.floor((np.pi / 2 - phi) * H / np.pi).astype(np.int64), 0, H - 1))
-        rots.append(R)
-        norms.append(n)
-    return rots, np.stack(rows), np.stack(cols), np.stack(norms), K
+    return ViewSampler(ViewRig.cube(width // 4), width)
 
 
-def cube_faces(depth: np.ndarray, face: int, maps=None):
-    """Cut a radial ERP depth map into 6 pinhole z-depth faces.
-
-    maps : the result of :func:`cube_face_maps` for this size (computed when None)
+def cube_faces(depth: np.ndarray, sampler):
+    """Cut a radial ERP depth map into the sampler's pinhole faces.
 
     Returns
     -------
     list of (R_cam_face (3, 3) float64, depth_z (face, face) float32 metres)
     K : (3, 3) float64 intrinsics of every face (90 degree field of view)
     """
-    rots, rows, cols, norms, K = maps if maps is not None else cube_face_maps(*depth.shape, face)
-    z = (depth[rows, cols] / norms).astype(np.float32)
-    return [(R, z[i]) for i, R in enumerate(rots)], K
+    z = sampler.split(None, depth)[1].astype(np.float32)
+    return [(view.R_cam_view, z[i]) for i, view in enumerate(sampler.rig)], sampler.rig[0].camera.K
 
 
 def open3d_tsdf_pass(depths, poses, voxel_size: float, depth_max: float):
@@ -109,12 +79,13 @@ def open3d_tsdf_pass(depths, poses, voxel_size: float, depth_max: float):
     import open3d as o3d
     import open3d.core as o3c
 
+    from ..baselines.tsdf import TRUNC_VOXELS
+
     dev = o3c.Device("CPU:0")
-    face = depths[0].shape[1] // 4
-    maps = cube_face_maps(*depths[0].shape, face)
+    sampler = cube_sampler(depths[0].shape[1])
     prepared = []
     for d, T in zip(depths, poses):
-        faces, K = cube_faces(d, face, maps)
+        faces, K = cube_faces(d, sampler)
         for R, z in faces:
             T_face = np.eye(4)
             T_face[:3, :3] = T[:3, :3] @ R
@@ -138,15 +109,15 @@ def open3d_tsdf_pass(depths, poses, voxel_size: float, depth_max: float):
 
 
 def panovocc_update_pass(depths, poses, geo):
-    """A callable that runs the geometric update (:func:`~.contributors.geometry_delta` then
-    :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame.
+    """A callable that runs the geometric update (:func:`~panovocc_cli.mapping.contributors.geometry_delta` then
+    :meth:`~panovocc_cli.mapping.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame.
     One warm-up pass (numba compilation / cache load) runs before returning.
 
     depths : list of (H, W) float32, metres, radial; poses : (N, 4, 4) float64 T_world_cam
-    geo : :class:`~.params.GeometryParams` (stride resolved)
+    geo : :class:`~panovocc_cli.mapping.params.GeometryParams` (stride resolved)
     """
-    from .contributors import geometry_delta
-    from .memory import GEOMETRY_CHANNELS, VoxelMemory
+    from ..mapping.contributors import geometry_delta
+    from ..mapping.memory import GEOMETRY_CHANNELS, VoxelMemory
 
     def run():
         mem = VoxelMemory(geo.voxel_size, GEOMETRY_CHANNELS)
@@ -160,12 +131,12 @@ def panovocc_update_pass(depths, poses, geo):
 
 
 def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int, weights):
-    """A callable that runs the semantic update (:func:`.contributors.semantic_delta` from the given logits,
-    then :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
+    """A callable that runs the semantic update (:func:`~panovocc_cli.mapping.contributors.semantic_delta` from the
+    given logits, then :meth:`~panovocc_cli.mapping.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
     (one warm-up pass first). ``weights``: the map command's resolved EvidenceWeights (its stride)."""
     from ..geometry.erp import ray_directions
-    from .memory import VoxelMemory
-    from .contributors import semantic_channels, semantic_delta
+    from ..mapping.contributors import semantic_channels, semantic_delta
+    from ..mapping.memory import VoxelMemory
 
     rays = ray_directions(depths[0].shape[1])
 
@@ -234,8 +205,8 @@ def run_bench(cfg: BenchConfig) -> dict:
     from ..classes import parse_vocab
     from ..semantics.registry import build_segmenter
     from ..semantics.simulated import sequence_label_source
-    from .params import GeometryParams
-    from .pipeline import MapConfig, resolve
+    from ..mapping.params import GeometryParams
+    from ..mapping.pipeline import MapConfig, resolve
 
     cfg = validate_config(cfg)  # frames, width, repeats: the ranges declared on BenchConfig
     out = Path(cfg.out)
@@ -272,7 +243,7 @@ def run_bench(cfg: BenchConfig) -> dict:
     cmds = {"map_semantics": ["-m", "panovocc_cli", "map", seq_dir, out / "map_sem", "--overwrite", "--quiet"],
             "map_geometry": ["-m", "panovocc_cli", "map", seq_dir, out / "map_geo", "--segmenter", "none",
                              "--overwrite", "--quiet"],
-            "open3d": ["-m", "panovocc_cli.mapping.o3d_tsdf", seq_dir, out / "o3d",
+            "open3d": ["-m", "panovocc_cli.benchmark.o3d_tsdf", seq_dir, out / "o3d",
                        "--voxel-size", cfg.voxel_size, "--depth-max", geo.max_range]}
     for args in cmds.values():  # untimed: numba caches, imports
         process_seconds(args)
