@@ -37,11 +37,13 @@ from ..errors import PanovoccError
 TASK_FILE = "task.json"
 EVENTS = "_events/computed"
 KINDS = ("synth", "gt", "render", "poses", "map", "baseline", "eval", "coverage", "show")
-# modules whose text changes no task output: the command line, and the benchmark's graph building, tables and
-# runner (a task's output is a function of its kind, params and inputs, run by the stages below and the
-# library; what the graph puts in the params is in the key already). Left out of the key.
+# modules whose text changes no task output: the command line, and the benchmark's graph building, tables,
+# runner and speed benchmarks (a task's output is a function of its kind, params and inputs, run by the stages
+# below and the library; what the graph puts in the params is in the key already). Left out of the key, but
+# for the benchmark modules a task imports: this one and the methods registry (the map task's command line,
+# methods.map_cli_flags) with what it imports (tests/benchmark/test_tasks.py checks the list).
 _NOT_IN_FINGERPRINT = ("cli/", "benchmark/")
-_IN_FINGERPRINT = ("benchmark/tasks.py",)
+_IN_FINGERPRINT = ("benchmark/tasks.py", "benchmark/methods.py", "benchmark/available.py")
 
 
 def _canonical(obj: Any) -> str:

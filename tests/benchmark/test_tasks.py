@@ -22,6 +22,23 @@ def test_code_fingerprint_is_stable_hex():
     assert code_fingerprint() == code_fingerprint() and len(code_fingerprint()) == 64
 
 
+def test_code_fingerprint_covers_every_module_a_task_can_run():
+    """Every module benchmark/tasks.py imports, directly or through others (imports inside functions
+    included), is hashed into the fingerprint; the command line is not."""
+    from import_graph import MODULES, import_graph, reachable
+
+    from panovocc_cli.benchmark import tasks
+
+    def hashed(module):
+        rel = MODULES[module].relative_to(MODULES[""].parent).as_posix()
+        return not rel.startswith(tasks._NOT_IN_FINGERPRINT) or rel in tasks._IN_FINGERPRINT
+
+    run = reachable(import_graph(), "benchmark.tasks")
+    assert {"mapping.pipeline", "evaluation.run", "rendering.render", "benchmark.methods"} <= run
+    assert [m for m in sorted(run) if not hashed(m)] == []
+    assert not hashed("cli.map_cmds") and not hashed("benchmark.bench") and hashed("mapping.mapper")
+
+
 def test_execute_caches_and_resumes(tmp_path):
     cache = tmp_path / "cache"
     t = Task("synth", {"seed": 5, "rooms": 1, "frames": 3, "house": False}, label="synth x", code=code_fingerprint())
