@@ -26,7 +26,9 @@ from .params import GeometryParams, OccupancyParams
 if TYPE_CHECKING:  # pragma: no cover
     from .mapper import MapperConfig
 
-FORMAT_VERSION = 3  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule
+FORMAT_VERSION = 4  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule;
+#                    4: semantic channels from kept observations, in integer steps (mapping/semantic.py)
+SEMANTIC_FORMAT = 4  # the first format whose semantic channels this panovocc reads
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 SEGMENTER_NONE = "none"

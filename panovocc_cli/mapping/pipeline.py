@@ -77,9 +77,10 @@ def auto_semantic_stride(width: int) -> int:
 class SequenceFrames:
     """The map commands' frame source: frame ``i`` of a sequence folder, with the segmenter's logits.
 
-    Callable as ``frames(i) -> Frame`` (what ``Mapper(frame_source=...)`` asks for on ``revise``). The
-    segmenter runs here, in the run loop, never inside the mapper; the simulated one is seeded per frame,
-    so asking for a frame again gives the same logits.
+    Callable as ``frames(i) -> Frame`` (the run loop's frames, segmented); :meth:`read` gives the frame
+    without segmenting it (what ``Mapper(frame_source=...)`` asks for on ``revise``: the semantics of a
+    revised frame come from the observation kept with its delta). The segmenter runs here, in the run loop,
+    never inside the mapper.
 
     Parameters
     ----------
@@ -96,6 +97,11 @@ class SequenceFrames:
         self.segmenter = segmenter
         self.vocab = list(vocab)
         self.segmenter_seconds = 0.0  # time spent in the segmenter (run summaries)
+
+    def read(self, i: int) -> Frame:
+        """Frame ``i`` without segmenting it: what a revision needs (``Mapper(frame_source=frames.read)``;
+        its semantics come from the observation kept with the frame's delta)."""
+        return self.seq.frame(i)
 
     def __call__(self, i: int) -> Frame:
         frame = self.seq.frame(i)
@@ -353,7 +359,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if has_store(out):
-            mapper = Mapper.load(out, frame_source=frames)
+            mapper = Mapper.load(out, frame_source=frames.read)
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))
@@ -362,7 +368,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 mapper.close()
                 raise PanovoccError("the sequence's poses changed since the run started (use revise)", out)
         else:
-            mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
+            mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
     else:
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
@@ -399,7 +405,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapstore.write_map_config(out, cfg.to_json())
         if pose_source is None:
             write_poses(out / "poses.txt", seq.poses)
-        mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
+        mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
     n = len(seq)
     end = n if stop_after is None else min(n, stop_after)
     from tqdm import tqdm
@@ -508,7 +514,7 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         if len(new_poses) != k:
             raise PanovoccError(f"{len(new_poses)} poses, the map has {k} frames", poses_path)
         seq = _open_sequence(dataclasses.replace(cfg, poses=str(poses_path)), new_poses)
-        mapper.frame_source = sequence_frames(cfg, seq)
+        mapper.frame_source = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
