@@ -445,6 +445,9 @@ class NonzeroChannels(Mapping):
     def __iter__(self):
         return iter(s.name for s in self._memory.specs)
 
+    def __contains__(self, name) -> bool:  # without reading the channel (Mapping's default would read it)
+        return any(s.name == name for s in self._memory.specs)
+
     def __len__(self) -> int:
         return len(self._memory.specs)
 

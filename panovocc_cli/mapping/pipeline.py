@@ -467,6 +467,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     if end < n:
         summary.update(stopped_at=end)
         return summary
+    from ..runtime import release_freed_heap
+
+    release_freed_heap()  # the frames' freed temporaries, before the save's and the export's
     mapper.save(out, background=True)  # memory.npz compresses while the export runs
     try:
         summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
