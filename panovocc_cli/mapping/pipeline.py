@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import shutil
 import sys
 import time
@@ -33,7 +34,7 @@ from ..config import validate_config
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
-from ..io.atomic import check_output, clean_temporaries
+from ..io.atomic import check_output, clean_temporaries, write_text
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_poses, write_poses
@@ -163,6 +164,15 @@ def prefetched(frames, indices):
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def resident_mb() -> float:
+    """This process's resident memory now, MB (Linux ``/proc/self/statm``; NaN elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    except (OSError, ValueError, IndexError):
+        return float("nan")
 
 
 def write_exports(out: Path, mapper: Mapper, ply_color: str) -> dict:
@@ -382,6 +392,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
+        if cfg.frame_times is not None and Path(cfg.frame_times).exists() and not overwrite:
+            raise PanovoccError("already exists (use --overwrite to replace it)", cfg.frame_times)
         seq = _open_sequence(cfg)
         cfg = resolve_origin(resolve(cfg, seq.meta.width), seq.poses)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
@@ -418,6 +430,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     unplaced: list[int] = []
     last_T = np.eye(4)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
+    times = [] if cfg.frame_times else None
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
               else ((i, frames(i)) for i in range(start, end)))
@@ -441,11 +454,15 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 corrected += schedule.apply(mapper, frames, i)
             for fid, T in revisions:
                 mapper.revise(fid, T)
-            t_compute += time.perf_counter() - tc
+            t_frame = time.perf_counter() - tc
+            t_compute += t_frame
             bar.update(1)
             done = i + 1
-            if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
+            ck = bool(cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n)
+            if ck:
                 mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
+            if times is not None:
+                times.append((i, time.perf_counter() - t0, 1e3 * t_frame, int(ck), resident_mb()))
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -453,6 +470,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     finally:
         mapper.close()
         bar.close()
+        if times is not None:
+            write_text(cfg.frame_times, "frame,t_s,update_ms,checkpoint,rss_mb\n" + "".join(
+                f"{i},{t:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, u, c, r in times))
     wall = time.perf_counter() - t0
     steps = max(end - start, 1)
     summary = {"frames": n, "integrated": end - start, "ms_per_frame": 1e3 * wall / steps,
