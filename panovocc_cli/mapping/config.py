@@ -28,8 +28,10 @@ from ..semantics.registry import SEGMENTER_AUTO, SEGMENTER_NONE
 from .ablation import AblationParams
 from .params import KERNELS, RADIAL, RULES, GeometryParams, OccupancyParams
 
-FORMAT_VERSION = 3  # of a map folder; 2: semantic section (a version-1 config is a geometry-only map); 3: footprint-
-# fitted surfels, N = frames with a measurement, occupancy rule
+FORMAT_VERSION = 4  # of a map folder; 2: semantic section (a version-1 config is a geometry-only map); 3: footprint-
+# fitted surfels, N = frames with a measurement, occupancy rule; 4: semantic channels from kept observations, in
+# integer steps (mapping/contributors.py)
+SEMANTIC_FORMAT = 4  # the first format whose semantic channels this panovocc reads
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 PLY_COLORS = ("class", "rgb", "height")
@@ -128,6 +130,9 @@ class MapConfig:
     poses_reference: str | None = option(None, cli_type=Path, parse=str,
                                          help="Reference trajectory of --poses-align; default SEQ/poses.txt.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
+    frame_times: str | None = option(None, cli_type=Path, parse=str,
+                                     help="Write a CSV of every frame's cost (frame, seconds since the first "
+                                          "frame, update ms, checkpoint 0/1, resident MB) to this file.")
     # the map's local origin, metres, world (voxel keys are relative to it); None = the first frame's voxel
     origin: list | None = option(None, cli_type=str, parse=lambda t: parse_origin(t),
                                  help="Map origin X,Y,Z in metres (world), snapped to the voxel lattice; voxel keys "
@@ -160,7 +165,8 @@ class MapConfig:
         try:
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
-                       checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o, origin=origin,
+                       checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
+                       geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
                        semantic=s, ablation=AblationParams.from_json(d.get("ablation")))
         except (KeyError, TypeError, ValueError, AttributeError) as e:
@@ -175,7 +181,8 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
     """The mapper's sections of a map folder's ``config.json`` (``d``, parsed JSON): geometry, occupancy,
     semantic (absent: a geometry-only map) and the local origin (absent: a map made before local origins,
     keyed relative to the world's). Refuses, naming ``where``, anything but a JSON object of a format
-    version this panovocc reads with sections of the right keys and types."""
+    version this panovocc reads with sections of the right keys and types, and a semantic map older than
+    :data:`SEMANTIC_FORMAT`."""
     if not isinstance(d, dict):
         raise PanovoccError("not a panovocc map config (expected a JSON object)", where)
     version = d.get("format_version", 1)
@@ -189,6 +196,10 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
         origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
+    if s.enabled and s.vocab and version < SEMANTIC_FORMAT:
+        raise PanovoccError(f"a semantic map of format {version}, whose class evidence this panovocc no longer reads "
+                            f"(format {SEMANTIC_FORMAT} keeps segmenter observations in integer steps): map the "
+                            "sequence again", where)
     return g, o, s, origin
 
 

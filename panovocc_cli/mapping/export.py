@@ -29,6 +29,7 @@ from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.gsc import consolidate, unaries
+from .contributors import NORMAL_STEPS, S_SCALE
 from .memory import FIXED_SCALE
 from .params import RULES, OccupancyParams
 
@@ -174,7 +175,8 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     ----------
     occupied_keys : (n,) int64 voxel keys (lattice.pack_keys)
     channels : dict of the occupied voxels' stored channels, rows aligned with ``occupied_keys``:
-        E (n, C), S (n, 1), normal_sum (n, 3) fixed point; rgb_sum (n, 3), count (n, 1) int64
+        E (n, C), S (n, 1), normal_sum (n, 3), rgb_sum (n, 3), count (n, 1) int64 (the integer channels of
+        :mod:`.contributors`)
     g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
     params : object with ``use_gsc`` and ``gsc`` (``MapperConfig`` or ``SemanticParams``)
 
@@ -185,9 +187,10 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     n = len(occupied_keys)
     if n == 0:
         return np.zeros(0, np.int64)
-    E = channels["E"] / FIXED_SCALE
-    S = channels["S"][:, 0] / FIXED_SCALE
-    p, normals, colors = unaries(E, S, channels["normal_sum"] / FIXED_SCALE, channels["rgb_sum"], channels["count"][:, 0])
+    E = channels["E"] / S_SCALE
+    S = channels["S"][:, 0] / S_SCALE
+    p, normals, colors = unaries(E, S, channels["normal_sum"] / NORMAL_STEPS, channels["rgb_sum"],
+                                 channels["count"][:, 0])
     return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
                        use_gsc=params.use_gsc, params=params.gsc)
 
