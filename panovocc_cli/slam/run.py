@@ -60,28 +60,37 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     summary : run_map's summary plus ``slam`` (keyframes, loop closures, optimisations, lost,
         relocalised and unplaced frames) and ``track_ms_per_frame``
     """
-    from ..io.atomic import write_text
-    from ..io.poses import write_tum
     from ..mapping.pipeline import run_map
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
     source = SlamPoses(params)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source)
-    out = Path(summary["out"])
-    tr = source.tracker
-    committed = tr.committed()
+    summary["slam"] = _write_slam_outputs(
+        Path(summary["out"]), source.tracker, frames=summary["frames"], revisions=source.revisions,
+        unplaced_frames=summary.get("unplaced_frames", []), track_ms_per_frame=summary.get("track_ms_per_frame"),
+        lost_reasons={str(f): r for f, s, _, r in source.steps if r})
+    return summary
+
+
+def _write_slam_outputs(out: Path, tracker: Tracker, frames: int, revisions: int, unplaced_frames: list,
+                        track_ms_per_frame, lost_reasons: dict) -> dict:
+    """Write ``out/trajectory.tum`` (the placed frames' committed poses, timestamp = frame index; empty when
+    none was placed) and ``out/slam.json`` (the tracker's summary and the run's figures); return slam.json's
+    content."""
+    from ..io.atomic import write_text
+    from ..io.poses import write_tum
+
+    committed = tracker.committed()
     ids = sorted(committed)
     if ids:
         write_tum(out / TRAJECTORY_TUM, np.stack([committed[i] for i in ids]), timestamps=np.array(ids, np.float64))
     else:
         write_text(out / TRAJECTORY_TUM, "")
-    info = tr.summary() | {"frames": summary["frames"], "placed": len(ids), "revisions": source.revisions,
-                           "unplaced_frames": summary.get("unplaced_frames", []),
-                           "track_ms_per_frame": summary.get("track_ms_per_frame"),
-                           "lost_reasons": {str(f): r for f, s, _, r in source.steps if r}}
+    info = tracker.summary() | {"frames": frames, "placed": len(ids), "revisions": revisions,
+                                "unplaced_frames": unplaced_frames, "track_ms_per_frame": track_ms_per_frame,
+                                "lost_reasons": lost_reasons}
     write_text(out / SLAM_JSON, json.dumps(info, indent=2) + "\n")
-    summary["slam"] = info
-    return summary
+    return info
 
 
 def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None = None) -> dict:
@@ -99,8 +108,7 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
     """
     import time
 
-    from ..io.atomic import write_text
-    from ..io.poses import write_poses, write_tum
+    from ..io.poses import write_poses
     from ..io.sequence import Sequence, read_meta
 
     n = read_meta(seq).frames
@@ -125,14 +133,6 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
             unplaced.append(i)
         if step.reason:
             reasons[str(i)] = step.reason
-    committed = tracker.committed()
-    ids = sorted(committed)
     write_poses(out / "poses.txt", poses)
-    if ids:
-        write_tum(out / TRAJECTORY_TUM, np.stack([committed[i] for i in ids]), timestamps=np.array(ids, np.float64))
-    else:
-        write_text(out / TRAJECTORY_TUM, "")
-    info = tracker.summary() | {"frames": n, "placed": len(ids), "revisions": revisions, "unplaced_frames": unplaced,
-                                "track_ms_per_frame": 1e3 * t_track / max(n, 1), "lost_reasons": reasons}
-    write_text(out / SLAM_JSON, json.dumps(info, indent=2) + "\n")
-    return info
+    return _write_slam_outputs(out, tracker, frames=n, revisions=revisions, unplaced_frames=unplaced,
+                               track_ms_per_frame=1e3 * t_track / max(n, 1), lost_reasons=reasons)
