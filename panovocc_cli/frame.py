@@ -1,6 +1,6 @@
 """One RGB-D frame held in memory: what a sequence reader yields and what the mapper integrates.
 
-A :class:`Frame` is data, not a file handle: readers (``io.sequence.read_frames``), renderers or a SLAM
+A :class:`Frame` is data, not a file handle: readers (``io.sequence.Sequence.frame``), renderers or a SLAM
 front end build it, and nothing downstream reaches back to disk for it. It lives at the package root,
 next to :mod:`panovocc_cli.grid`, because both the I/O layer (which produces frames) and the mapping
 layer (which consumes them) use it.

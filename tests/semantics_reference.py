@@ -1,6 +1,7 @@
 """The numpy reference of the per-frame semantic evidence (tests only).
 
-:func:`frame_semantic_delta_numpy` is the plain-numpy chain ``erp_normals`` -> ``softmax`` ->
+:func:`softmax` and :func:`measurement_weights` (with :func:`w_range`) are the per-pixel probabilities and
+weights; :func:`frame_semantic_delta_numpy` is the plain-numpy chain ``erp_normals`` -> ``softmax`` ->
 ``measurement_weights`` -> ``semantic_frame_delta`` that ``panovocc map`` ran before the step was
 compiled (``panovocc_cli.semantics.evidence.frame_semantic_delta``); :func:`simulate_logits_numpy` is
 the simulated segmenter in plain numpy (its fields, ellipses and boundary erosion as before they were
@@ -16,9 +17,49 @@ import numpy as np
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.erp import latitudes, ray_directions
 from panovocc_cli.geometry.lattice import pack_keys, point_to_index
-from panovocc_cli.semantics.evidence import EvidenceWeights, measurement_weights, softmax, w_erp, w_range
+from panovocc_cli.semantics.evidence import EvidenceWeights, w_erp
 from panovocc_cli.semantics.simulated import (CONFIDENCE_MODELS, SimulatedConfig, _blob_partners, clean_logit_table,
                                               expected_labels, similarity_matrix)
+
+
+def softmax(logits: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Numerically stable softmax.
+
+    Parameters
+    ----------
+    logits : (..., C) float
+
+    Returns
+    -------
+    probs : (..., C) float32, non-negative, summing to 1 along ``axis``
+    """
+    x = np.asarray(logits, dtype=np.float32)
+    e = np.exp(x - x.max(axis=axis, keepdims=True))
+    return e / e.sum(axis=axis, keepdims=True)
+
+
+def w_range(r, scale: float = 4.0) -> np.ndarray:
+    """Range weight ``1 / (1 + (r / scale) ** 2)``; ``r`` metres (0 where ``r <= 0``)."""
+    r = np.asarray(r, dtype=np.float64)
+    return np.where(r > 0, 1.0 / (1.0 + (r / scale) ** 2), 0.0)
+
+
+def measurement_weights(probs: np.ndarray, phi, r, weights: EvidenceWeights = EvidenceWeights()) -> np.ndarray:
+    """Weight eta of each measurement.
+
+    Parameters
+    ----------
+    probs : (..., C) float, class probabilities
+    phi : (...) float, latitude in radians (broadcast against ``probs[..., 0]``, e.g. ``(H, 1)``)
+    r : (...) float, range in metres (radial depth), 0 = invalid
+
+    Returns
+    -------
+    eta : (...) float32 in [0, 1]
+    """
+    c = np.asarray(probs).max(axis=-1)
+    eta = c * w_erp(phi, weights.erp_power, weights.erp_floor) * w_range(r, weights.range_scale)
+    return eta.astype(np.float32)
 
 
 def erp_normals(points_cam: np.ndarray, valid: np.ndarray, max_jump: float = 0.1) -> np.ndarray:

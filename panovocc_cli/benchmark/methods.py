@@ -11,8 +11,8 @@ options are identical (PanOVOcc, the ablation's full model, the upstream default
 map. A method whose ``requires`` do not all import (:mod:`.available`) is listed in the tables as "not
 available in this build"; it is never run and never given a number.
 
-To add a method: one :class:`Method` in :data:`METHODS` (and, for a new runner, one branch in
-:func:`panovocc_cli.benchmark.tasks.run_method`).
+To add a method: one :class:`Method` in :data:`METHODS` (and, for a new runner, one stage function in
+:data:`panovocc_cli.benchmark.tasks.STAGES`).
 """
 
 from __future__ import annotations

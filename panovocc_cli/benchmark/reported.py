@@ -1,6 +1,6 @@
 """The paper's published numbers (../shared/paper/panovocc-paper.tex), shown beside ours as ``reported``.
 
-Transcribed from the paper's tables (labels below); tests/benchmark/test_reported.py checks every number
+Transcribed from the paper's tables (labels below); tests/benchmark/test_reproduce.py checks every number
 against the TeX source when the paper is present. They were measured on Pan-Replica and Pan-Holo360D
 (real Replica scenes and real Holo360D captures), not on the embedded synthetic splits: they are shown
 for reference, never mixed into our measurements.

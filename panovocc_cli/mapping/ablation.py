@@ -14,7 +14,7 @@ toolkit runs (seeded, documented in docs/baselines.md, "Ablations"):
   block's at the end of the sequence);
 * **with RPU** (default) each revision is :meth:`Mapper.revise`: the stale contribution is subtracted and
   the frame recomputed under the true pose, so the final map equals a map made with the true poses from
-  the start (exactly: tests/mapping/test_ablation.py);
+  the start (exactly: tests/baselines/test_ablation.py);
 * **without RPU** (``--no-rpu``): the corrected frame is integrated again under its true pose, **on top of**
   the stale contribution, which stays (the copy's id is the frame's plus the number of frames).
 

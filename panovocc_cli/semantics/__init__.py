@@ -7,7 +7,8 @@
 * :mod:`.clip` — the training-free dense CLIP segmenter (NACLIP's recipe on open_clip; extra ``.[clip]``);
 * :mod:`.tiling` — any perspective segmenter on panoramas through overlapping pinhole tiles;
 * :mod:`.query` — free-text queries of a finished map (text -> classes -> voxels, clusters) and re-labelling;
-* :mod:`.evidence` — softmax, weights eta and the compiled per-frame sparse semantic delta;
+* :mod:`.observation` — a frame's segmenter output reduced to what the map keeps (top-2 classes);
+* :mod:`.evidence` — weights eta and the compiled per-frame sparse semantic delta;
 * :mod:`.gsc` — Geometry-Aware Semantic Consolidation and the bounded nearest-evidence transfer;
 * :mod:`.metrics2d` — per-frame 2D scores of a segmentation against ground truth (pure).
 """

@@ -1,4 +1,4 @@
-"""Per-frame semantic evidence (paper Eq. memory_semantic_delta), as pure numpy functions.
+"""Per-frame semantic evidence (paper Eq. memory_semantic_delta), compiled (numba), no I/O.
 
 Each valid pixel p of frame t at the semantic stride is one semantic measurement: its kept observation
 (:mod:`.observation`: the two most probable classes and their probabilities in 1/15 steps) gives a
@@ -16,6 +16,9 @@ Defaults (:class:`EvidenceWeights`) and why:
   oversamples and where panoramic segmenters are least reliable, count proportionally less;
 * ``w_range(r) = 1 / (1 + (r / range_scale) ** 2)`` with ``range_scale = 4 m``: far surfaces are seen
   at lower resolution and with noisier depth; 0 for ``r <= 0`` (no measurement).
+
+The plain-numpy chain these kernels compute (``erp_normals``, ``softmax``, ``measurement_weights``,
+``semantic_frame_delta``) is the tests' reference, in tests/semantics_reference.py.
 """
 
 from __future__ import annotations
@@ -28,49 +31,9 @@ from ..geometry.lattice import pack_index
 from .params import EvidenceWeights  # noqa: F401  (re-export: its public home until now)
 
 
-def softmax(logits: np.ndarray, axis: int = -1) -> np.ndarray:
-    """Numerically stable softmax.
-
-    Parameters
-    ----------
-    logits : (..., C) float
-
-    Returns
-    -------
-    probs : (..., C) float32, non-negative, summing to 1 along ``axis``
-    """
-    x = np.asarray(logits, dtype=np.float32)
-    e = np.exp(x - x.max(axis=axis, keepdims=True))
-    return e / e.sum(axis=axis, keepdims=True)
-
-
 def w_erp(phi, power: float = 1.0, floor: float = 0.05) -> np.ndarray:
     """Latitude weight ``clip(cos(phi) ** power, floor, 1)``; ``phi`` radians, 0 at the equator."""
     return np.clip(np.cos(np.asarray(phi, dtype=np.float64)) ** power, floor, 1.0)
-
-
-def w_range(r, scale: float = 4.0) -> np.ndarray:
-    """Range weight ``1 / (1 + (r / scale) ** 2)``; ``r`` metres (0 where ``r <= 0``)."""
-    r = np.asarray(r, dtype=np.float64)
-    return np.where(r > 0, 1.0 / (1.0 + (r / scale) ** 2), 0.0)
-
-
-def measurement_weights(probs: np.ndarray, phi, r, weights: EvidenceWeights = EvidenceWeights()) -> np.ndarray:
-    """Weight eta of each measurement.
-
-    Parameters
-    ----------
-    probs : (..., C) float, class probabilities
-    phi : (...) float, latitude in radians (broadcast against ``probs[..., 0]``, e.g. ``(H, 1)``)
-    r : (...) float, range in metres (radial depth), 0 = invalid
-
-    Returns
-    -------
-    eta : (...) float32 in [0, 1]
-    """
-    c = np.asarray(probs).max(axis=-1)
-    eta = c * w_erp(phi, weights.erp_power, weights.erp_floor) * w_range(r, weights.range_scale)
-    return eta.astype(np.float32)
 
 
 def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: np.ndarray,
@@ -79,8 +42,8 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: n
     """The whole per-frame semantic step for one ERP frame: back-project, weigh, accumulate (compiled).
 
     Per measurement pixel (rows and columns ``0, s, 2s, ...``, ``s = weights.stride``) of the frame's
-    :class:`~.observation.SemanticObservation`: its world point, its normal (:func:`erp_normals`'s
-    rule), its weight ``eta = float32(c w_erp w_range) * s^2`` with the observation's confidence ``c``, and
+    :class:`~.observation.SemanticObservation`: its world point, its normal (the rule of the tests'
+    ``erp_normals``), its weight ``eta = float32(c w_erp w_range) * s^2`` with the observation's confidence ``c``, and
     ``eta`` times its two classes' shares added to ``E``. Two numba kernels: a pass over fixed row chunks
     in parallel finding each pixel's voxel, and per-chunk sums in pixel order merged in chunk order, so
     the float sums never depend on the thread count (tests/semantics/test_semantics_evidence.py checks
@@ -278,7 +241,7 @@ def _difference(okf, okb, a0, a1, a2, p0, p1, p2, b0, b1, b2):
 
 @nb.njit(cache=True, inline="always")
 def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
-    """World-frame unit normals ``nw`` (3, W) of row ``v`` as :func:`erp_normals` (central differences,
+    """World-frame unit normals ``nw`` (3, W) of row ``v`` as the tests' ``erp_normals`` (central differences,
     one-sided at invalid neighbours and depth jumps over ``max_jump`` relative range; 0 where undefined;
     facing the camera; cast to float32 before the rotation ``R``), from the rolling row buffers of
     :func:`_row_points` (slot ``row % 3``); branch-free along the row."""

@@ -7,13 +7,13 @@ from panovocc_cli.classes import DEFAULT_VOCAB
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import pack_keys, point_to_index, unpack_keys
-from panovocc_cli.semantics.evidence import (EvidenceWeights, frame_semantic_delta, measurement_weights, softmax,
-                                             w_erp, w_range)
+from panovocc_cli.semantics.evidence import EvidenceWeights, frame_semantic_delta, w_erp
 from panovocc_cli.semantics.observation import observe
 from panovocc_cli.semantics.simulated import SimulatedConfig, simulate_logits
 
 from semantics_helpers import CLASS_NAMES, pose, render_room
-from semantics_reference import erp_normals, frame_semantic_delta_numpy, semantic_frame_delta
+from semantics_reference import (erp_normals, frame_semantic_delta_numpy, measurement_weights, semantic_frame_delta,
+                                 softmax, w_range)
 
 VOCAB = list(DEFAULT_VOCAB)
 

@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+from semantics_reference import softmax
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.mapping.contributors import D_STEPS, S_STEPS, distribution_steps, quantize_semantic_delta
-from panovocc_cli.semantics.evidence import softmax
 from panovocc_cli.semantics.observation import Q_LEVELS, SemanticObservation, measurement, observe
 
 

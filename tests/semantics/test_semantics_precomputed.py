@@ -4,11 +4,11 @@ import json
 
 import numpy as np
 import pytest
+from semantics_reference import softmax
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.io.images import write_png
 from panovocc_cli.io.npz import write_npz
-from panovocc_cli.semantics.evidence import softmax
 from panovocc_cli.semantics.precomputed import (MISSING_LOGPROB, PrecomputedSegmenter, write_precomputed,
                                                 write_precomputed_labels)
 

@@ -1,7 +1,7 @@
 """The radial noise fit: each frame's depth noise sigma_r(r), measured on its own smooth surfaces.
 
 On every ``FIT_SUB``-th strided sample of each image axis, the distance of the sample to the line
-through its two neighbours (+-s pixels) estimates the radial noise (:func:`raw_residuals`); per range
+through its two neighbours (+-s pixels) estimates the radial noise (:func:`_raw_residuals`); per range
 bin a low quantile of those residuals gives sigma_r^2 (:func:`radial_noise_fit`), made non-decreasing
 in range and floored at ``SIGMA_FLOOR``. :func:`interp1` reads the resulting table at a range.
 """

@@ -10,7 +10,7 @@ modelled as a Gaussian aligned with its spherical viewing geometry::
 with E the (longitude, latitude, ray) directions in the world frame and the weight
 ``omega = c_norm w_lat(phi) w_range(r)``, ``w_lat = 1 - (1 - w_pole) sin^2 phi``,
 ``w_range = 1 / (1 + r / r_half)``. A numpy transcription of the same maths, used to test this compiled
-one, lives in tests/mapping/psvf_reference.py.
+one, lives in tests/psvf_reference.py.
 """
 
 from __future__ import annotations
