@@ -18,10 +18,9 @@ def _configs():
     from panovocc_cli.datasets.synth import SynthConfig
     from panovocc_cli.demo import DemoConfig
     from panovocc_cli.evaluation.run import (ConvertReplicaOccConfig, ConvertToReplicaOccConfig, CoverageConfig,
-                                             EvalConfig, ShowConfig)
+                                             EvalConfig, SegevalConfig, ShowConfig)
     from panovocc_cli.gt_config import GtConfig
     from panovocc_cli.benchmark.bench import BenchConfig
-    from panovocc_cli.evaluation.segeval import SegevalConfig
     from panovocc_cli.mapping.config import MapConfig, ReviseConfig
     from panovocc_cli.rendering.render import RenderConfig
 

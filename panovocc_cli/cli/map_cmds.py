@@ -11,7 +11,7 @@ from ..errors import PanovoccError
 from ..benchmark.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
 from ..mapping.ablation import AblationParams
-from ..evaluation.segeval import SegevalConfig
+from ..evaluation.run import SegevalConfig
 from ..mapping.config import POSES_SLAM, MapConfig, ReviseConfig, SemanticParams
 from ._app import app
 from .options import OptionValues, build_config, config_command
@@ -98,7 +98,7 @@ def segeval(o: OptionValues, quiet: bool = typer.Option(False, "--quiet", help="
     """A segmenter's own per-frame 2D mIoU on a labelled sequence (pixel counts pooled over frames)."""
     import math
 
-    from ..evaluation.segeval import run_segeval
+    from ..evaluation.run import run_segeval
 
     res, frames = run_segeval(SegevalConfig(**o), progress=not quiet)
     for (name, v), here in zip(res.iou.items(), res.present):

@@ -7,7 +7,7 @@ from panovocc_cli.classes import DEFAULT_VOCAB, EVAL8, canonical_name
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.erp import latitudes
 from panovocc_cli.io.sequence import SequenceMeta, write_frame, write_meta, write_sequence_poses
-from panovocc_cli.evaluation.segeval import SegevalConfig, run_segeval
+from panovocc_cli.evaluation.run import SegevalConfig, run_segeval
 from panovocc_cli.semantics.metrics2d import frame_scores
 from panovocc_cli.semantics.registry import build_segmenter
 from panovocc_cli.semantics.simulated import CONFIDENCE_MODELS, SimulatedConfig, expected_labels, simulate_logits
