@@ -17,7 +17,8 @@ a pose file that moves ``--revise`` frames (the tail of the run, as a late loop 
   (its start-up footprint) and the ratio of the peak above that to the memory held;
 * the delta store: bytes per frame, files, and what an hour at 10 Hz would take at that rate;
 * wall time per frame (from ``--frame-times``: checkpoints, reading and segmentation included), the
-  median over frames 10-20 % of the run and over the last 10 %, and their ratio;
+  median over frames 10-20 % of the run and over the last 10 %, and their ratio; the same for the
+  process's CPU time per frame (all its threads), which other jobs on the machine disturb less;
 * checkpoint cost: the median wall time of frames that checkpointed less that of the others;
 * revising ``--revise`` frames (``panovocc revise``, whole process) against integrating the same frames in
   the run (the sum of their wall times);
@@ -63,6 +64,7 @@ def frame_costs(csv_path: Path) -> dict:
     the checkpoint cost, and the resident memory after the first frame."""
     rows = list(csv.DictReader(open(csv_path)))
     t = np.array([float(r["t_s"]) for r in rows])
+    cpu = np.diff(np.array([float(r["cpu_s"]) for r in rows]), prepend=0.0)
     ck = np.array([int(r["checkpoint"]) for r in rows], bool)
     rss = np.array([float(r["rss_mb"]) for r in rows])
     dt = np.diff(t, prepend=0.0)  # frame k's wall: from the end of frame k-1 (the first: from the loop's start)
@@ -72,7 +74,9 @@ def frame_costs(csv_path: Path) -> dict:
     # a checkpoint's commit runs on the writer thread: its cost lands on the frame after it
     after = np.zeros(n, bool)
     after[1:] = ck[:-1]
+    sl_early, sl_late = slice(int(0.1 * n), max(int(0.2 * n), int(0.1 * n) + 1)), slice(n - max(n // 10, 1), n)
     return {"frames": n, "ms_early": 1e3 * float(np.median(early)), "ms_late": 1e3 * float(np.median(late)),
+            "cpu_ms_early": 1e3 * float(np.median(cpu[sl_early])), "cpu_ms_late": 1e3 * float(np.median(cpu[sl_late])),
             "late_over_early": float(np.median(late) / np.median(early)),
             "checkpoint_ms": 1e3 * float(np.median(dt[ck | after]) - np.median(dt[~(ck | after)])) if ck.any() else None,
             "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20, "dt": dt}
@@ -156,7 +160,8 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
            "map_wall_s": mrun["wall_s"], "peak_rss_bytes": peak, "startup_rss_bytes": fc["startup_rss_bytes"],
            "peak_above_startup_over_memory": (peak - fc["startup_rss_bytes"]) / mem["memory_bytes"],
            "ms_per_frame_early": fc["ms_early"], "ms_per_frame_late": fc["ms_late"],
-           "late_over_early": fc["late_over_early"], "checkpoints": fc["checkpoints"],
+           "late_over_early": fc["late_over_early"], "cpu_ms_per_frame_early": fc["cpu_ms_early"],
+           "cpu_ms_per_frame_late": fc["cpu_ms_late"], "checkpoints": fc["checkpoints"],
            "checkpoint_ms": fc["checkpoint_ms"], "revised_frames": k, "revise_wall_s": rrun["wall_s"],
            "integrate_same_frames_s": integrate_s, "revise_over_integrate": rrun["wall_s"] / integrate_s,
            "hour_at_10hz_bytes": mem["delta_bytes_per_frame"] * HOUR_FRAMES,
@@ -186,6 +191,9 @@ def table_rows(r: dict) -> list:
         ("an hour at 10 Hz at that rate", f"{r['hour_at_10hz_bytes'] / 1e9:.1f} GB"),
         ("ms per frame, frames 10-20 % / last 10 %", f"{r['ms_per_frame_early']:.1f} / {r['ms_per_frame_late']:.1f}"
                                                       f" ({r['late_over_early']:.2f}x)"),
+        ("CPU ms per frame (all threads), same frames", f"{r['cpu_ms_per_frame_early']:.1f} / "
+                                                         f"{r['cpu_ms_per_frame_late']:.1f} "
+                                                         f"({r['cpu_ms_per_frame_late'] / r['cpu_ms_per_frame_early']:.2f}x)"),
         ("checkpoint cost (every 25 frames)", "-" if ck is None else f"{ck:+.1f} ms ({r['checkpoints']} checkpoints)"),
         (f"revise {r['revised_frames']:,} frames / integrate them", f"{r['revise_wall_s']:.1f} s / "
                                                                   f"{r['integrate_same_frames_s']:.1f} s "

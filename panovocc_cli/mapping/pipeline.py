@@ -432,6 +432,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     last_T = np.eye(4)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
     times = [] if cfg.frame_times else None
+    c0 = time.process_time()
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
               else ((i, frames(i)) for i in range(start, end)))
@@ -463,7 +464,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if ck:
                 mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
             if times is not None:
-                times.append((i, time.perf_counter() - t0, 1e3 * t_frame, int(ck), resident_mb()))
+                times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
+                              resident_mb()))
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -472,8 +474,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapper.close()
         bar.close()
         if times is not None:
-            write_text(cfg.frame_times, "frame,t_s,update_ms,checkpoint,rss_mb\n" + "".join(
-                f"{i},{t:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, u, c, r in times))
+            write_text(cfg.frame_times, "frame,t_s,cpu_s,update_ms,checkpoint,rss_mb\n" + "".join(
+                f"{i},{t:.4f},{cpu:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, cpu, u, c, r in times))
     wall = time.perf_counter() - t0
     steps = max(end - start, 1)
     summary = {"frames": n, "integrated": end - start, "ms_per_frame": 1e3 * wall / steps,
@@ -541,7 +543,8 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         if len(new_poses) != k:
             raise PanovoccError(f"{len(new_poses)} poses, the map has {k} frames", poses_path)
         seq = _open_sequence(dataclasses.replace(cfg, poses=str(poses_path)), new_poses)
-        mapper.frame_source = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
+        reader = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
+        mapper.frame_source = reader
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
@@ -549,8 +552,11 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         # until the save's COMMIT record the map is as it was: a failure leaves records that the next
         # opening cuts off
         try:
-            for i in tqdm(changed, desc="revise", unit="frame", file=sys.stderr, disable=not progress):
-                mapper.revise(i, new_poses[i])
+            bar = tqdm(total=len(changed), desc="revise", unit="frame", file=sys.stderr, disable=not progress)
+            for i, frame in prefetched(reader, changed):  # frame i + 1 is read while frame i is revised
+                mapper.revise(i, new_poses[i], frame=frame)
+                bar.update(1)
+            bar.close()
             mapper.save(out)
         except BaseException:
             mapper._rpu.rollback()
