@@ -49,6 +49,11 @@ def _rosbags():
     return AnyReader, AnyReaderError, Stores, get_typestore
 
 
+def _why(e: Exception) -> str:
+    """An exception as one line: its type and its message with the whitespace (line breaks) folded."""
+    return f"{type(e).__name__}: {' '.join(str(e).split())}"
+
+
 class Bag:
     """An open ROS 1 or ROS 2 recording (use as a context manager).
 
@@ -70,9 +75,9 @@ class Bag:
             self.reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             self.reader.open()
         except self._errors as e:
-            raise PanovoccError(f"cannot read the bag ({type(e).__name__}: {e})", self.path) from None
+            raise PanovoccError(f"cannot read the bag ({_why(e)})", self.path) from None
         except Exception as e:  # rosbags' own reader errors (Reader1/Reader2) and sqlite/mcap errors
-            raise PanovoccError(f"cannot read the bag ({type(e).__name__}: {e})", self.path) from None
+            raise PanovoccError(f"cannot read the bag ({_why(e)})", self.path) from None
 
     def __enter__(self) -> "Bag":
         return self
@@ -110,7 +115,7 @@ class Bag:
             for c, t, raw in self.reader.messages(connections=conns):
                 yield c.topic, int(t), self.reader.deserialize(raw, c.msgtype)
         except self._errors as e:
-            raise PanovoccError(f"cannot read a message ({type(e).__name__}: {e})", self.path) from None
+            raise PanovoccError(f"cannot read a message ({_why(e)})", self.path) from None
 
 
 def stamp_ns(msg, bag_ns: int, stamp: str = "header") -> int:
