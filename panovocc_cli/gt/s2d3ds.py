@@ -25,19 +25,19 @@ from ..grid import OCCUPIED_UNKNOWN_CLASS, Grid
 from ..gt_config import S2d3dsGtConfig
 
 
-def voxel_counts(points: np.ndarray, class_id: int, n_classes: int, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
-    """(keys (m,) int64, counts (m,) int64): points of one class per voxel; key = packed index * n_classes + class."""
+def voxel_counts(points: np.ndarray, class_id: int, voxel_size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(keys (m,) int64 packed voxel indices, classes (m,) int64, counts (m,) int64): one class's points per voxel."""
     idx = np.floor(np.asarray(points, np.float64) / voxel_size + GT_BOUNDARY_EPS).astype(np.int64)
-    k, c = np.unique(pack_keys(idx) * n_classes + int(class_id), return_counts=True)
-    return k, c.astype(np.int64)
+    k, c = np.unique(pack_keys(idx), return_counts=True)
+    return k, np.full(len(k), int(class_id), np.int64), c.astype(np.int64)
 
 
-def points_to_grid(counts: Iterable[tuple[np.ndarray, np.ndarray]], class_names, voxel_size: float) -> Grid:
+def points_to_grid(counts: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], class_names, voxel_size: float) -> Grid:
     """The grid of accumulated :func:`voxel_counts`.
 
     Parameters
     ----------
-    counts : (keys, counts) pairs of :func:`voxel_counts` (any order, any repeats: they are summed)
+    counts : (keys, classes, counts) of :func:`voxel_counts` (any order, any repeats: they are summed)
     class_names : list of str, ``class_names[0] == "empty"``; class ids index it (0 = no class)
     voxel_size : h, metres
 
@@ -46,17 +46,16 @@ def points_to_grid(counts: Iterable[tuple[np.ndarray, np.ndarray]], class_names,
     Grid: 1..C the class with the most points (ties: the lower id), 254 points of no class only, 0 elsewhere
     in the points' box.
     """
-    C = len(class_names)
-    if C > OCCUPIED_UNKNOWN_CLASS:
-        raise PanovoccError(f"{C} classes; a uint8 grid holds at most 253")
+    if len(class_names) > OCCUPIED_UNKNOWN_CLASS:
+        raise PanovoccError(f"{len(class_names)} classes; a uint8 grid holds at most 253")
     parts = list(counts)
-    keys = np.concatenate([k for k, _ in parts]) if parts else np.zeros(0, np.int64)
-    if not len(keys):
+    if not parts or not sum(len(k) for k, _, _ in parts):
         raise PanovoccError("no annotated point to voxelise")
-    uk, inv = np.unique(keys, return_inverse=True)
-    tot = np.bincount(inv, weights=np.concatenate([c for _, c in parts]).astype(np.float64)).astype(np.int64)
-    vox, cls = uk // C, uk % C
-    score = np.where(cls > 0, tot, -1)  # points of no class lose to any class
+    pairs = np.stack([np.concatenate([k for k, _, _ in parts]), np.concatenate([c for _, c, _ in parts])], axis=1)
+    uk, inv = np.unique(pairs, axis=0, return_inverse=True)
+    tot = np.bincount(inv.reshape(-1), weights=np.concatenate([n for _, _, n in parts]).astype(np.float64))
+    vox, cls = uk[:, 0], uk[:, 1]
+    score = np.where(cls > 0, tot, -1.0)  # points of no class lose to any class
     order = np.lexsort((cls, -score, vox))  # per voxel: most points first, then the lower class id
     first = np.ones(len(order), bool)
     first[1:] = vox[order][1:] != vox[order][:-1]
@@ -101,7 +100,7 @@ def run_s2d3ds_gt(cfg: S2d3dsGtConfig) -> dict:
         points += len(pts)
         if len(pts):
             cls = canonical_name(annotation_class(path))
-            counts.append(voxel_counts(pts, ids.get(CLASS_MAP.get(cls, cls), 0), len(names), cfg.voxel_size))
+            counts.append(voxel_counts(pts, ids.get(CLASS_MAP.get(cls, cls), 0), cfg.voxel_size))
     grid = points_to_grid(counts, names, cfg.voxel_size)
     write_grid(cfg.out, grid)
     write_run_config(config_path_beside(cfg.out), cfg)
