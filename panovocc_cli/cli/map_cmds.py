@@ -56,9 +56,9 @@ def map_cmd(
 def _live_log(rrd, connect: bool, url, every: int, overwrite: bool):
     """The Rerun live log of ``map --rerun`` / ``--rerun-connect`` (None without either); the .rrd path is
     checked here, before the run."""
+    if url is not None and not connect:
+        raise PanovoccError("--rerun-url is the viewer address of --rerun-connect; give --rerun-connect too")
     if rrd is None and not connect:
-        if url is not None:
-            raise PanovoccError("--rerun-url is the viewer address of --rerun-connect; give --rerun-connect too")
         return None
     if rrd is not None and connect:
         raise PanovoccError("give --rerun FILE.rrd or --rerun-connect, not both")
