@@ -54,7 +54,7 @@ def require_rerun():
 
 
 def open_stream(rrd: str | Path | None = None, connect: str | None = None, spawn: bool = False,
-                recording_id: str = "panovocc"):
+                recording_id: str = "panovocc", eye=None):
     """A recording stream for the application ``panovocc``.
 
     Parameters
@@ -64,6 +64,7 @@ def open_stream(rrd: str | Path | None = None, connect: str | None = None, spawn
         default local viewer
     spawn : start a native viewer and stream to it
     recording_id : the recording's id (fixed, so two logs of the same map are the same recording)
+    eye : the 3D view's starting camera (:func:`blueprint`)
 
     Wall-clock log times are not recorded (only the ``frame`` timeline and the log tick), so the same data
     logged twice holds the same values; Rerun's own row and chunk ids still differ between runs.
@@ -71,16 +72,37 @@ def open_stream(rrd: str | Path | None = None, connect: str | None = None, spawn
     rr = require_rerun()
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
     rec.set_log_time_enabled(False)
+    bp = blueprint(eye)
     if spawn:
-        rec.spawn(connect=True)
+        rec.spawn(connect=True, default_blueprint=bp)
     elif connect is not None:
-        rec.connect_grpc(connect or None)
+        rec.connect_grpc(connect or None, default_blueprint=bp)
     elif rrd is not None:
-        rec.save(str(rrd))
+        rec.save(str(rrd), default_blueprint=bp)
     else:
         raise ValueError("open_stream needs rrd, connect or spawn")
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     return rec
+
+
+def blueprint(eye=None):
+    """The viewer's layout: the 3D map (``world``) on the left; the panorama, its depth, and the legend and text
+    log (tabs) on the right. ``eye``: (position (3,), look target (3,)) metres, world, of the 3D view's camera."""
+    import rerun.blueprint as rrb
+
+    kw = {}
+    if eye is not None:
+        kw["eye_controls"] = rrb.EyeControls3D(position=[float(v) for v in eye[0]],
+                                               look_target=[float(v) for v in eye[1]], eye_up=[0.0, 0.0, 1.0])
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="map", **kw),
+            rrb.Vertical(rrb.Spatial2DView(origin="panorama", name="panorama"),
+                         rrb.Spatial2DView(origin="depth", name="depth (mm)"),
+                         rrb.Tabs(rrb.TextDocumentView(origin="legend", name="legend"),
+                                  rrb.TextLogView(origin="log", name="log"))),
+            column_shares=[3, 2]),
+        collapse_panels=True)
 
 
 def class_table(class_names) -> list[tuple[int, str, tuple[int, int, int]]]:
@@ -94,6 +116,25 @@ def annotation_context(class_names):
     """``AnnotationContext`` mapping grid labels to class names and colours (the viewer's legend on hover)."""
     rr = require_rerun()
     return rr.AnnotationContext([rr.AnnotationInfo(id=k, label=n, color=c) for k, n, c in class_table(class_names)])
+
+
+def cut_top(grid: Grid, z_keep: int | None) -> Grid:
+    """The grid with every voxel above lattice layer ``z_keep`` set to 255 (not drawn; ``None``: unchanged)."""
+    if z_keep is None:
+        return grid
+    lab = grid.labels.copy()
+    lab[:, :, max(0, int(z_keep) - int(grid.index0[2]) + 1):] = UNKNOWN
+    return Grid(lab, grid.origin, grid.voxel_size, grid.class_names)
+
+
+def overview_eye(grid: Grid):
+    """A 3D view's camera looking down at the grid's occupied voxels from above one corner (position, target)."""
+    centres, _ = occupied_voxels(grid)
+    if not len(centres):
+        return None
+    lo, hi = centres.min(axis=0), centres.max(axis=0)
+    mid, ext = 0.5 * (lo + hi), hi - lo
+    return mid + np.array([-0.45 * ext[0], -0.75 * ext[1], 0.6 * max(ext[0], ext[1])]), mid
 
 
 def occupied_voxels(grid: Grid) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +159,8 @@ def voxel_boxes(centres: np.ndarray, voxel_size: float, class_ids=None, color=No
         kw["class_ids"] = np.asarray(class_ids, np.uint16)
     if color is not None:
         kw["colors"] = [color]
-    return rr.Boxes3D(centers=np.asarray(centres, np.float32), half_sizes=[[h, h, h]], fill_mode="solid", **kw)
+    return rr.Boxes3D(centers=np.asarray(centres, np.float32), half_sizes=[[h, h, h]], fill_mode="solid",
+                      show_labels=False, **kw)
 
 
 def legend_markdown(grid: Grid, title: str = "Classes") -> str:

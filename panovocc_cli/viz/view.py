@@ -37,6 +37,7 @@ class ViewConfig:
     gt: Path | None = option(None, help="Ground-truth grid .npz: also show the difference (false positives red, "
                                         "false negatives blue, wrong class orange).", show_default=False)
     free: bool = option(False, help="Also show the observed free voxels (grey points).")
+    cut_top: int = option(0, min=0, help="Leave out the top K voxel layers (to look into rooms), as show --cut-top.")
     pano_stride: int = option(0, min=0, help="Log the panorama and depth of every k-th frame (0 = evenly spread, "
                                              f"at most {MAX_PANORAMAS}).")
     pano_width: int = option(512, min=0, help="Subsample panoramas to at most this width in pixels (0 = full size).")
@@ -126,12 +127,20 @@ def run_view(cfg: ViewConfig, spawn: bool | None = None, progress: bool = False)
     summary = {"map": str(cfg.map), "out": str(out) if out is not None else "viewer", "frames": len(poses),
                "panoramas": len(frames), "note": note}
 
+    z_keep = None
+    if cfg.cut_top:
+        from ..evaluation.render_grid import drawing_box
+
+        z_keep = drawing_box([grid] + ([gt] if gt is not None else []), cfg.cut_top)[2]
+    shown = rl.cut_top(grid, z_keep)
+    eye = rl.overview_eye(shown)
+
     def log_all(rec):
-        summary.update(rl.log_grid(rec, grid, free=cfg.free))
+        summary.update(rl.log_grid(rec, shown, free=cfg.free))
         rl.log_markdown(rec, "legend", rl.legend_markdown(grid, f"Classes of {Path(cfg.map).name}"))
         rl.log_poses(rec, poses)
         if gt is not None:
-            summary["difference"] = rl.log_difference(rec, grid, gt)
+            summary["difference"] = rl.log_difference(rec, shown, rl.cut_top(gt, z_keep))
         want = set(frames)
         for i in tqdm(range(len(poses)), desc="view", unit="frame", disable=not progress):
             rec.set_time(rl.TIMELINE, sequence=i)
@@ -142,12 +151,12 @@ def run_view(cfg: ViewConfig, spawn: bool | None = None, progress: bool = False)
             rl.log_text(rec, note, level="WARN")
 
     if out is None:
-        rec = rl.open_stream(spawn=True)
+        rec = rl.open_stream(spawn=True, eye=eye)
         log_all(rec)
         rec.flush()
         return summary
     with atomic_path(out) as tmp:
-        rec = rl.open_stream(rrd=tmp)
+        rec = rl.open_stream(rrd=tmp, eye=eye)
         try:
             log_all(rec)
         finally:

@@ -149,7 +149,8 @@ def annotations(root: Path) -> Path:
     for room, files in {"office_1": {"chair_1.txt": ["0.05 0.05 0.05 1 2 3"] * 3 + ["0.15 0.05 0.05 1 2 3"],
                                      "wall_1.txt": ["0.05 0.05 0.05 1 2 3"] * 2 + ["0.15 0.05 0.05 0 0 0",
                                                                                    "0.3 0.3 0.2 0 0 0"],
-                                     "clutter_2.txt": ["0.15 0.05 0.05 9 9 9", "0.15 0.06 0.05 9 9 9", "bad\x10 line"]},
+                                     "clutter_2.txt": ["0.15 0.05 0.05 9 9 9", "0.15 0.06 0.05 9 9 9", "bad\x10 line",
+                                                       "0.55 0.05 0.05 185\x00187 9"]},
                         "hallway_2": {"stairs_1.txt": ["0.45 0.05 0.05 0 0 0"], "floor_1.txt": []}}.items():
         (a / room / "Annotations").mkdir(parents=True)
         for f, lines in files.items():
@@ -168,12 +169,13 @@ def test_ground_truth_from_annotations(tmp_path, capsys):
     expect = {(0, 0, 0): "chair",  # 3 chair points beat 2 wall points
               (1, 0, 0): "clutter",  # clutter 2 points, chair 1, wall 1
               (3, 3, 2): "wall",  # 0.2 / 0.1 = 2: a point on a voxel face belongs to the voxel above it
-              (4, 0, 0): "stairs"}
+              (4, 0, 0): "stairs",
+              (5, 0, 0): "clutter"}  # two colour numbers glued by a NUL byte (as in a released file): x y z kept
     i0 = g.index0
     occ = {tuple(int(v) for v in ijk + i0): g.class_names[g.labels[tuple(ijk)]]
            for ijk in np.argwhere((g.labels != 0) & (g.labels != 255))}
     assert occ == expect
-    assert (g.labels == 0).sum() == g.labels.size - 4  # the rest of the points' box is empty
+    assert (g.labels == 0).sum() == g.labels.size - 5  # the rest of the points' box is empty
     assert json.loads((tmp_path / "gt.config.json").read_text())["voxel_size"] == 0.1
 
 
