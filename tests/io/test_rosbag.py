@@ -13,7 +13,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from box_room import box_depth  # noqa: E402
-from cli_helpers import snapshot  # noqa: E402
+from cli_helpers import run_cli, snapshot  # noqa: E402
 
 pytest.importorskip("rosbags")
 
@@ -125,13 +125,7 @@ def smooth_rgb(k):
 
 
 def run(capsys, *argv):
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([os.fspath(a) for a in argv])
-    cap = capsys.readouterr()
-    return int(e.value.code or 0), cap.out, cap.err
+    return run_cli(capsys, list(argv))
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from box_room import box_depth  # noqa: E402
-from cli_helpers import snapshot  # noqa: E402
+from cli_helpers import run_cli, snapshot  # noqa: E402
 
 from panovocc_cli.geometry.poses import look_at  # noqa: E402
 from panovocc_cli.io.grid import read_grid  # noqa: E402
@@ -87,13 +87,7 @@ def area(tmp_path_factory) -> Path:
 
 
 def run(capsys, *argv):
-    from panovocc_cli.cli import main
-
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([os.fspath(a) for a in argv])
-    cap = capsys.readouterr()
-    return int(e.value.code or 0), cap.out, cap.err
+    return run_cli(capsys, list(argv))
 
 
 def test_pose_forms_agree_on_a_consistent_file(area):
