@@ -154,3 +154,28 @@ def test_map_rerun_bad_input_leaves_no_recording(case, base, tmp_path, capsys):
     lines = [x for x in err.splitlines() if x.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: ")
     assert snapshot(base, tmp_path) == before
+
+
+def test_map_slam_rerun_hears_of_loop_closures(base, tmp_path, capsys, monkeypatch):
+    """--poses slam: the pose source passes the tracker's loop edges to the live log (a loop edge is added to the
+    tracker's own answer at frame 2, so the wiring is seen whatever the four frames give)."""
+    import dataclasses
+
+    from panovocc_cli.slam import run as slam_run
+
+    track = slam_run.Tracker.track
+
+    def with_loop(self, i, depth):
+        step = track(self, i, depth)
+        return dataclasses.replace(step, loops=list(step.loops) + ([(0, 1)] if i == 2 else []))
+
+    monkeypatch.setattr(slam_run.Tracker, "track", with_loop)
+    rrd = tmp_path / "slam.rrd"
+    code, o, err = run_cli(capsys, ["map", base / "seq", tmp_path / "map", "--poses", "slam", "--rerun", rrd,
+                                    "--quiet"])
+    assert code == 0, err
+    rec = read_rrd(rrd)
+    assert [r["frame"] for r in rec["world/camera"]] == [0, 1, 2, 3]
+    texts = [(r["frame"], r["TextLog:text"][0]) for r in rec["log"]]
+    assert (2, "frame 2: loop closure 0-1") in texts
+    assert "world/slam/loop_closures" in rec
