@@ -43,7 +43,7 @@ setsid "$chrome" --headless=new --no-sandbox --disable-gpu-sandbox --use-gl=angl
   --enable-unsafe-swiftshader --ignore-gpu-blocklist --hide-scrollbars --window-size="${size/x/,}" \
   --remote-debugging-port="$cdp" --user-data-dir="$profile" about:blank >/dev/null 2>&1 &
 browser=$!
-trap 'kill -- -$server 2>/dev/null; kill -- -$browser 2>/dev/null; rm -rf "$log" "$profile"' EXIT
+trap 'kill -- -$server 2>/dev/null; kill -- -$browser 2>/dev/null; wait 2>/dev/null; rm -rf "$log" "$profile"' EXIT
 for _ in $(seq 60); do
   curl -sf -o /dev/null "http://127.0.0.1:$cdp/json/version" && break
   sleep 0.5

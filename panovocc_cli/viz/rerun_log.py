@@ -37,7 +37,7 @@ NO_CLASS_NAME = "occupied (no class)"
 DIFF_COLORS = {"false_positive": (230, 60, 50), "false_negative": (50, 110, 230), "wrong_class": (250, 170, 30)}
 """Colours of the prediction/ground-truth difference: occupied only in the prediction, only in the truth, or
 occupied in both with a different class name."""
-FRUSTUM_M = 0.15
+FRUSTUM_M = 0.1
 """Metres: depth of the wire pyramid drawn for each panorama (its centre column's 90-degree view)."""
 FREE_RADIUS_FRACTION = 0.15
 """Free voxels are drawn as points of this fraction of the voxel edge."""
