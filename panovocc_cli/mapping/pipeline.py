@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import shutil
 import sys
 import time
@@ -33,7 +34,7 @@ from ..config import validate_config
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
-from ..io.atomic import check_output, clean_temporaries
+from ..io.atomic import check_output, clean_temporaries, write_text
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_poses, write_poses
@@ -77,9 +78,10 @@ def auto_semantic_stride(width: int) -> int:
 class SequenceFrames:
     """The map commands' frame source: frame ``i`` of a sequence folder, with the segmenter's logits.
 
-    Callable as ``frames(i) -> Frame`` (what ``Mapper(frame_source=...)`` asks for on ``revise``). The
-    segmenter runs here, in the run loop, never inside the mapper; the simulated one is seeded per frame,
-    so asking for a frame again gives the same logits.
+    Callable as ``frames(i) -> Frame`` (the run loop's frames, segmented); :meth:`read` gives the frame
+    without segmenting it (what ``Mapper(frame_source=...)`` asks for on ``revise``: the semantics of a
+    revised frame come from the observation kept with its delta). The segmenter runs here, in the run loop,
+    never inside the mapper.
 
     Parameters
     ----------
@@ -96,6 +98,11 @@ class SequenceFrames:
         self.segmenter = segmenter
         self.vocab = list(vocab)
         self.segmenter_seconds = 0.0  # time spent in the segmenter (run summaries)
+
+    def read(self, i: int) -> Frame:
+        """Frame ``i`` without segmenting it: what a revision needs (``Mapper(frame_source=frames.read)``;
+        its semantics come from the observation kept with the frame's delta)."""
+        return self.seq.frame(i)
 
     def __call__(self, i: int) -> Frame:
         frame = self.seq.frame(i)
@@ -157,6 +164,15 @@ def prefetched(frames, indices):
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def resident_mb() -> float:
+    """This process's resident memory now, MB (Linux ``/proc/self/statm``; NaN elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    except (OSError, ValueError, IndexError):
+        return float("nan")
 
 
 def write_exports(out: Path, mapper: Mapper, ply_color: str) -> dict:
@@ -357,7 +373,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if has_store(out):
-            mapper = Mapper.load(out, frame_source=frames)
+            mapper = Mapper.load(out, frame_source=frames.read)
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))
@@ -366,7 +382,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 mapper.close()
                 raise PanovoccError("the sequence's poses changed since the run started (use revise)", out)
         else:
-            mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
+            mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
     else:
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
@@ -380,6 +396,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
+        if cfg.frame_times is not None and Path(cfg.frame_times).exists() and not overwrite:
+            raise PanovoccError("already exists (use --overwrite to replace it)", cfg.frame_times)
         seq = _open_sequence(cfg)
         cfg = resolve_origin(resolve(cfg, seq.meta.width), seq.poses)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
@@ -403,7 +421,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapstore.write_map_config(out, cfg.to_json())
         if pose_source is None:
             write_poses(out / "poses.txt", seq.poses)
-        mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
+        mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
     n = len(seq)
     end = n if stop_after is None else min(n, stop_after)
     from tqdm import tqdm
@@ -416,6 +434,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     unplaced: list[int] = []
     last_T = np.eye(4)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
+    times = [] if cfg.frame_times else None
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
               else ((i, frames(i)) for i in range(start, end)))
@@ -439,13 +458,17 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 corrected += schedule.apply(mapper, frames, i)
             for fid, T in revisions:
                 mapper.revise(fid, T)
-            t_compute += time.perf_counter() - tc
+            t_frame = time.perf_counter() - tc
+            t_compute += t_frame
             if observer is not None:
                 observer.frame(i, frame, mapper, revisions)
             bar.update(1)
             done = i + 1
-            if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
+            ck = bool(cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n)
+            if ck:
                 mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
+            if times is not None:
+                times.append((i, time.perf_counter() - t0, 1e3 * t_frame, int(ck), resident_mb()))
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -453,6 +476,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     finally:
         mapper.close()
         bar.close()
+        if times is not None:
+            write_text(cfg.frame_times, "frame,t_s,update_ms,checkpoint,rss_mb\n" + "".join(
+                f"{i},{t:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, u, c, r in times))
     wall = time.perf_counter() - t0
     steps = max(end - start, 1)
     summary = {"frames": n, "integrated": end - start, "ms_per_frame": 1e3 * wall / steps,
@@ -467,6 +493,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     if end < n:
         summary.update(stopped_at=end)
         return summary
+    from ..runtime import release_freed_heap
+
+    release_freed_heap()  # the frames' freed temporaries, before the save's and the export's
     mapper.save(out, background=True)  # memory.npz compresses while the export runs
     try:
         summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
@@ -516,7 +545,7 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         if len(new_poses) != k:
             raise PanovoccError(f"{len(new_poses)} poses, the map has {k} frames", poses_path)
         seq = _open_sequence(dataclasses.replace(cfg, poses=str(poses_path)), new_poses)
-        mapper.frame_source = sequence_frames(cfg, seq)
+        mapper.frame_source = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
