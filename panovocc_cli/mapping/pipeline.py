@@ -175,10 +175,11 @@ def resident_mb() -> float:
         return float("nan")
 
 
-def write_exports(out: Path, mapper: Mapper, ply_color: str) -> dict:
-    """Write ``prediction.npz`` and ``map.ply`` of the mapper's current memory; return the counts
-    (occupied, free and, with semantics, classed voxels)."""
-    ex = mapper.export()
+def write_exports(out: Path, mapper: Mapper, ply_color: str, ex=None) -> dict:
+    """Write ``prediction.npz`` and ``map.ply`` of the mapper's current memory (``ex``: its export when the
+    caller already made it); return the counts (occupied, free and, with semantics, classed voxels)."""
+    if ex is None:
+        ex = mapper.export()
     write_grid(out / "prediction.npz", ex.grid)
     pts, cols = point_colors(ex, mapper.config.geometry.voxel_size, ply_color, mapper.config.vocab)
     write_ply_points(out / "map.ply", pts, cols)
@@ -495,10 +496,13 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         return summary
     from ..runtime import release_freed_heap
 
-    release_freed_heap()  # the frames' freed temporaries, before the save's and the export's
-    mapper.save(out, background=True)  # memory.npz compresses while the export runs
+    release_freed_heap()  # the frames' freed temporaries, before the export's and the save's
+    # the export's labelling (GSC) first, then memory.npz compresses while the grid and PLY are written:
+    # the two largest sets of temporaries never stack (peak RSS, docs/mapping.md "Memory layout")
+    ex = mapper.export()
+    mapper.save(out, background=True)
     try:
-        summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
+        summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
     finally:
         mapper.close()  # waits for memory.npz (re-raises a failed write)
     if observer is not None:
