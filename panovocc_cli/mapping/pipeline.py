@@ -333,7 +333,7 @@ def _remove_unless_started(out: Path) -> None:
 
 
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
-            progress: bool = True, stop_after: int | None = None, pose_source=None) -> dict:
+            progress: bool = True, stop_after: int | None = None, pose_source=None, observer=None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
 
     Parameters
@@ -347,6 +347,9 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         (slam/run.py). A frame it cannot place (None) is integrated as an empty observation at the last
         placed pose (so every frame has an id and a line in OUT/poses.txt) and listed in ``unplaced_frames``;
         each revision is applied at once with ``Mapper.revise``.
+    observer : optional; ``observer.frame(i, frame, mapper, revisions)`` is called after each frame is
+        integrated (and its revisions applied), ``observer.finish(mapper, summary)`` once the exports are
+        written (viz/live.py: the Rerun live log). It only reads; the map is the same with or without it.
 
     Returns
     -------
@@ -355,10 +358,11 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         observations)
     """
     with contextlib.ExitStack() as held:  # the folder lock (io/lock.py), taken once the folder is known
-        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source)
+        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source, observer)
 
 
-def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None) -> dict:
+def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None,
+             observer=None) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
@@ -458,6 +462,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 mapper.revise(fid, T)
             t_frame = time.perf_counter() - tc
             t_compute += t_frame
+            if observer is not None:
+                observer.frame(i, frame, mapper, revisions)
             bar.update(1)
             done = i + 1
             ck = bool(cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n)
@@ -501,6 +507,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
     finally:
         mapper.close()  # waits for memory.npz (re-raises a failed write)
+    if observer is not None:
+        observer.finish(mapper, summary)
     return summary
 
 
