@@ -20,8 +20,8 @@ a pose file that moves ``--revise`` frames (the tail of the run, as a late loop 
   median over frames 10-20 % of the run and over the last 10 %, and their ratio; the same for the
   process's CPU time per frame (all its threads), which other jobs on the machine disturb less;
 * checkpoint cost: the median wall time of frames that checkpointed less that of the others;
-* revising ``--revise`` frames (``panovocc revise``, whole process) against integrating the same frames in
-  the run (the sum of their wall times);
+* revising ``--revise`` frames (``panovocc revise``, whole process: wall and CPU time) against integrating
+  the same frames in the run (the sum of their wall and CPU times);
 * IoU / mIoU of the map against the scene's mesh ground truth.
 """
 
@@ -56,7 +56,7 @@ def timed(cmd: list, log: Path) -> dict:
     if code != 0:
         tail = log.read_text(errors="replace")[-2000:]
         raise SystemExit(f"{' '.join(map(str, cmd))} failed (exit {code}):\n{tail}")
-    return {"wall_s": wall, "peak_rss_bytes": int(usage.ru_maxrss) * 1024}
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_rss_bytes": int(usage.ru_maxrss) * 1024}
 
 
 def frame_costs(csv_path: Path) -> dict:
@@ -64,7 +64,7 @@ def frame_costs(csv_path: Path) -> dict:
     the checkpoint cost, and the resident memory after the first frame."""
     rows = list(csv.DictReader(open(csv_path)))
     t = np.array([float(r["t_s"]) for r in rows])
-    cpu = np.diff(np.array([float(r["cpu_s"]) for r in rows]), prepend=0.0)
+    cpu = np.diff(np.array([float(r["cpu_s"]) for r in rows]), prepend=0.0)  # the first: from the loop's start
     ck = np.array([int(r["checkpoint"]) for r in rows], bool)
     rss = np.array([float(r["rss_mb"]) for r in rows])
     dt = np.diff(t, prepend=0.0)  # frame k's wall: from the end of frame k-1 (the first: from the loop's start)
@@ -79,7 +79,7 @@ def frame_costs(csv_path: Path) -> dict:
             "cpu_ms_early": 1e3 * float(np.median(cpu[sl_early])), "cpu_ms_late": 1e3 * float(np.median(cpu[sl_late])),
             "late_over_early": float(np.median(late) / np.median(early)),
             "checkpoint_ms": 1e3 * float(np.median(dt[ck | after]) - np.median(dt[~(ck | after)])) if ck.any() else None,
-            "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20, "dt": dt}
+            "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20, "dt": dt, "cpu": cpu}
 
 
 def memory_figures(map_dir: Path) -> dict:
@@ -155,6 +155,7 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
     write_poses(work / "poses_revised.txt", moved_tail(poses, k))
     rrun = timed(_panovocc("revise", str(mp), str(work / "poses_revised.txt")), logs / "revise.log")
     integrate_s = float(fc["dt"][len(poses) - k:].sum())
+    integrate_cpu_s = float(fc["cpu"][len(poses) - k:].sum())
     peak = mrun["peak_rss_bytes"]
     out = {"scene": scene, "width": width, "seed": seed, "frames": fc["frames"], **mem,
            "map_wall_s": mrun["wall_s"], "peak_rss_bytes": peak, "startup_rss_bytes": fc["startup_rss_bytes"],
@@ -164,6 +165,8 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
            "cpu_ms_per_frame_late": fc["cpu_ms_late"], "checkpoints": fc["checkpoints"],
            "checkpoint_ms": fc["checkpoint_ms"], "revised_frames": k, "revise_wall_s": rrun["wall_s"],
            "integrate_same_frames_s": integrate_s, "revise_over_integrate": rrun["wall_s"] / integrate_s,
+           "revise_cpu_s": rrun["cpu_s"], "integrate_same_frames_cpu_s": integrate_cpu_s,
+           "revise_over_integrate_cpu": rrun["cpu_s"] / integrate_cpu_s,
            "hour_at_10hz_bytes": mem["delta_bytes_per_frame"] * HOUR_FRAMES,
            "iou": ev.get("iou"), "miou": ev.get("miou"), "load": os.getloadavg()}
     write_tables(work, out)
@@ -198,6 +201,8 @@ def table_rows(r: dict) -> list:
         (f"revise {r['revised_frames']:,} frames / integrate them", f"{r['revise_wall_s']:.1f} s / "
                                                                   f"{r['integrate_same_frames_s']:.1f} s "
                                                                   f"({r['revise_over_integrate']:.2f}x)"),
+        ("the same in CPU time (all threads)", f"{r['revise_cpu_s']:.1f} s / {r['integrate_same_frames_cpu_s']:.1f} s "
+                                               f"({r['revise_over_integrate_cpu']:.2f}x)"),
         ("map wall time", f"{r['map_wall_s']:.0f} s"),
         ("IoU / mIoU (eval12, mesh ground truth)", f"{r['iou']:.2f} / {r['miou']:.2f}"),
     ]
