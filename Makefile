@@ -35,7 +35,7 @@ $(STAMP): pyproject.toml Makefile
 	fi
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade pip 2>/dev/null || true
-	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test,clip]' 2>&1 | { grep -v "^WARNING: Location" || true; }
+	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test,clip,viz,ros]' 2>&1 | { grep -v "^WARNING: Location" || true; }
 	# pyrender pins PyOpenGL 3.1.0, whose OSMesa bindings are broken: take a fixed release after it.
 	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check 'PyOpenGL>=3.1.7' 2>&1 | { grep -v -e "^WARNING: Location" -e "pyrender" -e "dependency resolver" || true; }
 	touch $(STAMP)

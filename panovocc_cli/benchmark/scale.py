@@ -17,10 +17,11 @@ a pose file that moves ``--revise`` frames (the tail of the run, as a late loop 
   (its start-up footprint) and the ratio of the peak above that to the memory held;
 * the delta store: bytes per frame, files, and what an hour at 10 Hz would take at that rate;
 * wall time per frame (from ``--frame-times``: checkpoints, reading and segmentation included), the
-  median over frames 10-20 % of the run and over the last 10 %, and their ratio;
+  median over frames 10-20 % of the run and over the last 10 %, and their ratio; the same for the
+  process's CPU time per frame (all its threads), which other jobs on the machine disturb less;
 * checkpoint cost: the median wall time of frames that checkpointed less that of the others;
-* revising ``--revise`` frames (``panovocc revise``, whole process) against integrating the same frames in
-  the run (the sum of their wall times);
+* revising ``--revise`` frames (``panovocc revise``, whole process: wall and CPU time) against integrating
+  the same frames in the run (the sum of their wall and CPU times);
 * IoU / mIoU of the map against the scene's mesh ground truth.
 """
 
@@ -55,7 +56,7 @@ def timed(cmd: list, log: Path) -> dict:
     if code != 0:
         tail = log.read_text(errors="replace")[-2000:]
         raise SystemExit(f"{' '.join(map(str, cmd))} failed (exit {code}):\n{tail}")
-    return {"wall_s": wall, "peak_rss_bytes": int(usage.ru_maxrss) * 1024}
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_rss_bytes": int(usage.ru_maxrss) * 1024}
 
 
 def frame_costs(csv_path: Path) -> dict:
@@ -63,6 +64,7 @@ def frame_costs(csv_path: Path) -> dict:
     the checkpoint cost, and the resident memory after the first frame."""
     rows = list(csv.DictReader(open(csv_path)))
     t = np.array([float(r["t_s"]) for r in rows])
+    cpu = np.diff(np.array([float(r["cpu_s"]) for r in rows]), prepend=0.0)  # the first: from the loop's start
     ck = np.array([int(r["checkpoint"]) for r in rows], bool)
     rss = np.array([float(r["rss_mb"]) for r in rows])
     dt = np.diff(t, prepend=0.0)  # frame k's wall: from the end of frame k-1 (the first: from the loop's start)
@@ -72,10 +74,12 @@ def frame_costs(csv_path: Path) -> dict:
     # a checkpoint's commit runs on the writer thread: its cost lands on the frame after it
     after = np.zeros(n, bool)
     after[1:] = ck[:-1]
+    sl_early, sl_late = slice(int(0.1 * n), max(int(0.2 * n), int(0.1 * n) + 1)), slice(n - max(n // 10, 1), n)
     return {"frames": n, "ms_early": 1e3 * float(np.median(early)), "ms_late": 1e3 * float(np.median(late)),
+            "cpu_ms_early": 1e3 * float(np.median(cpu[sl_early])), "cpu_ms_late": 1e3 * float(np.median(cpu[sl_late])),
             "late_over_early": float(np.median(late) / np.median(early)),
             "checkpoint_ms": 1e3 * float(np.median(dt[ck | after]) - np.median(dt[~(ck | after)])) if ck.any() else None,
-            "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20, "dt": dt}
+            "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20, "dt": dt, "cpu": cpu}
 
 
 def memory_figures(map_dir: Path) -> dict:
@@ -151,14 +155,18 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
     write_poses(work / "poses_revised.txt", moved_tail(poses, k))
     rrun = timed(_panovocc("revise", str(mp), str(work / "poses_revised.txt")), logs / "revise.log")
     integrate_s = float(fc["dt"][len(poses) - k:].sum())
+    integrate_cpu_s = float(fc["cpu"][len(poses) - k:].sum())
     peak = mrun["peak_rss_bytes"]
     out = {"scene": scene, "width": width, "seed": seed, "frames": fc["frames"], **mem,
            "map_wall_s": mrun["wall_s"], "peak_rss_bytes": peak, "startup_rss_bytes": fc["startup_rss_bytes"],
            "peak_above_startup_over_memory": (peak - fc["startup_rss_bytes"]) / mem["memory_bytes"],
            "ms_per_frame_early": fc["ms_early"], "ms_per_frame_late": fc["ms_late"],
-           "late_over_early": fc["late_over_early"], "checkpoints": fc["checkpoints"],
+           "late_over_early": fc["late_over_early"], "cpu_ms_per_frame_early": fc["cpu_ms_early"],
+           "cpu_ms_per_frame_late": fc["cpu_ms_late"], "checkpoints": fc["checkpoints"],
            "checkpoint_ms": fc["checkpoint_ms"], "revised_frames": k, "revise_wall_s": rrun["wall_s"],
            "integrate_same_frames_s": integrate_s, "revise_over_integrate": rrun["wall_s"] / integrate_s,
+           "revise_cpu_s": rrun["cpu_s"], "integrate_same_frames_cpu_s": integrate_cpu_s,
+           "revise_over_integrate_cpu": rrun["cpu_s"] / integrate_cpu_s,
            "hour_at_10hz_bytes": mem["delta_bytes_per_frame"] * HOUR_FRAMES,
            "iou": ev.get("iou"), "miou": ev.get("miou"), "load": os.getloadavg()}
     write_tables(work, out)
@@ -186,10 +194,15 @@ def table_rows(r: dict) -> list:
         ("an hour at 10 Hz at that rate", f"{r['hour_at_10hz_bytes'] / 1e9:.1f} GB"),
         ("ms per frame, frames 10-20 % / last 10 %", f"{r['ms_per_frame_early']:.1f} / {r['ms_per_frame_late']:.1f}"
                                                       f" ({r['late_over_early']:.2f}x)"),
+        ("CPU ms per frame (all threads), same frames", f"{r['cpu_ms_per_frame_early']:.1f} / "
+                                                         f"{r['cpu_ms_per_frame_late']:.1f} "
+                                                         f"({r['cpu_ms_per_frame_late'] / r['cpu_ms_per_frame_early']:.2f}x)"),
         ("checkpoint cost (every 25 frames)", "-" if ck is None else f"{ck:+.1f} ms ({r['checkpoints']} checkpoints)"),
         (f"revise {r['revised_frames']:,} frames / integrate them", f"{r['revise_wall_s']:.1f} s / "
                                                                   f"{r['integrate_same_frames_s']:.1f} s "
                                                                   f"({r['revise_over_integrate']:.2f}x)"),
+        ("the same in CPU time (all threads)", f"{r['revise_cpu_s']:.1f} s / {r['integrate_same_frames_cpu_s']:.1f} s "
+                                               f"({r['revise_over_integrate_cpu']:.2f}x)"),
         ("map wall time", f"{r['map_wall_s']:.0f} s"),
         ("IoU / mIoU (eval12, mesh ground truth)", f"{r['iou']:.2f} / {r['miou']:.2f}"),
     ]

@@ -131,8 +131,9 @@ class MapConfig:
                                          help="Reference trajectory of --poses-align; default SEQ/poses.txt.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
     frame_times: str | None = option(None, cli_type=Path, parse=str,
-                                     help="Write a CSV of every frame's cost (frame, seconds since the first "
-                                          "frame, update ms, checkpoint 0/1, resident MB) to this file.")
+                                     help="Write a CSV of every frame's cost (frame, wall and process CPU "
+                                          "seconds since the first frame, update ms, checkpoint 0/1, resident "
+                                          "MB) to this file.")
     # the map's local origin, metres, world (voxel keys are relative to it); None = the first frame's voxel
     origin: list | None = option(None, cli_type=str, parse=lambda t: parse_origin(t),
                                  help="Map origin X,Y,Z in metres (world), snapped to the voxel lattice; voxel keys "

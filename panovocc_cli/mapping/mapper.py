@@ -223,20 +223,22 @@ class Mapper:
         self._next_id = max(self._next_id, fid + 1)
         return fid
 
-    def revise(self, frame_id: int, T_world_cam: np.ndarray) -> bool:
+    def revise(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None = None) -> bool:
         """Move frame ``frame_id`` to pose ``T_world_cam`` (4, 4): its delta is recomputed and swapped in.
 
         Returns False (nothing done) when the pose is unchanged. Exact: the memory then equals that of a
         map that had integrated the frame under this pose from the start. The frame's depth and colours
         come from the kept Frame or ``frame_source``; its semantics from the observation kept with its
         delta, so no segmenter runs (a ``frame_source`` need not segment; logits it gives are not used
-        when an observation is kept).
+        when an observation is kept). ``frame``: the frame's data when the caller already has it (read
+        ahead: ``panovocc revise``); its pose and logits are ignored.
         """
         fid = int(frame_id)
         T = _check_pose(T_world_cam, f"frame {fid}")
         if np.array_equal(T, self.pose(fid)):
             return False
-        frame = self._frames.get(fid)
+        if frame is None:
+            frame = self._frames.get(fid)
         if frame is None:
             if self.frame_source is None:
                 raise PanovoccError(f"frame {fid}: its data is not kept (a loaded map needs a frame_source to revise)")

@@ -349,7 +349,7 @@ def _remove_unless_started(out: Path) -> None:
 
 
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
-            progress: bool = True, stop_after: int | None = None, pose_source=None) -> dict:
+            progress: bool = True, stop_after: int | None = None, pose_source=None, observer=None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
 
     Parameters
@@ -363,6 +363,9 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         (slam/run.py). A frame it cannot place (None) is integrated as an empty observation at the last
         placed pose (so every frame has an id and a line in OUT/poses.txt) and listed in ``unplaced_frames``;
         each revision is applied at once with ``Mapper.revise``.
+    observer : optional; ``observer.frame(i, frame, mapper, revisions)`` is called after each frame is
+        integrated (and its revisions applied), ``observer.finish(mapper, summary)`` once the exports are
+        written (viz/live.py: the Rerun live log). It only reads; the map is the same with or without it.
 
     Returns
     -------
@@ -371,10 +374,11 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         observations)
     """
     with contextlib.ExitStack() as held:  # the folder lock (io/lock.py), taken once the folder is known
-        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source)
+        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source, observer)
 
 
-def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None) -> dict:
+def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None,
+             observer=None) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
@@ -448,6 +452,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     last_T = np.eye(4)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
     times = [] if cfg.frame_times else None
+    c0 = time.process_time()
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
               else ((i, frames(i)) for i in range(start, end)))
@@ -473,13 +478,16 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 mapper.revise(fid, T)
             t_frame = time.perf_counter() - tc
             t_compute += t_frame
+            if observer is not None:
+                observer.frame(i, frame, mapper, revisions)
             bar.update(1)
             done = i + 1
             ck = bool(cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n)
             if ck:
                 mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
             if times is not None:
-                times.append((i, time.perf_counter() - t0, 1e3 * t_frame, int(ck), resident_mb()))
+                times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
+                              resident_mb()))
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -488,8 +496,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapper.close()
         bar.close()
         if times is not None:
-            write_text(cfg.frame_times, "frame,t_s,update_ms,checkpoint,rss_mb\n" + "".join(
-                f"{i},{t:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, u, c, r in times))
+            write_text(cfg.frame_times, "frame,t_s,cpu_s,update_ms,checkpoint,rss_mb\n" + "".join(
+                f"{i},{t:.4f},{cpu:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, cpu, u, c, r in times))
     wall = time.perf_counter() - t0
     steps = max(end - start, 1)
     summary = {"frames": n, "integrated": end - start, "ms_per_frame": 1e3 * wall / steps,
@@ -515,6 +523,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
     finally:
         mapper.close()  # waits for memory.npz (re-raises a failed write)
+    if observer is not None:
+        observer.finish(mapper, summary)
     return summary
 
 
@@ -557,7 +567,8 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         if len(new_poses) != k:
             raise PanovoccError(f"{len(new_poses)} poses, the map has {k} frames", poses_path)
         seq = _open_sequence(dataclasses.replace(cfg, poses=str(poses_path)), new_poses)
-        mapper.frame_source = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
+        reader = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
+        mapper.frame_source = reader
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
@@ -565,8 +576,11 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         # until the save's COMMIT record the map is as it was: a failure leaves records that the next
         # opening cuts off
         try:
-            for i in tqdm(changed, desc="revise", unit="frame", file=sys.stderr, disable=not progress):
-                mapper.revise(i, new_poses[i])
+            bar = tqdm(total=len(changed), desc="revise", unit="frame", file=sys.stderr, disable=not progress)
+            for i, frame in prefetched(reader, changed):  # frame i + 1 is read while frame i is revised
+                mapper.revise(i, new_poses[i], frame=frame)
+                bar.update(1)
+            bar.close()
             mapper.save(out)
         except BaseException:
             mapper._rpu.rollback()
