@@ -94,9 +94,11 @@ def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=
     occ = np.zeros(n, np.bool_)
     free = np.zeros(n, np.bool_)
     g = np.zeros(n, np.float64)
-    A, N, F, O = (channels[c] for c in ("A", "N", "F", "O"))
-    for sl in _slices(n):
-        occ[sl], free[sl], g[sl] = classify(A[sl], N[sl], F[sl], O[sl], p)
+    geo = ("A", "N", "F", "O")
+    for sl in _slices(n):  # a memory's channels are read a slice at a time (never all of them at once)
+        c = channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
+            {k: channels[k][sl] for k in geo}
+        occ[sl], free[sl], g[sl] = classify(c["A"], c["N"], c["F"], c["O"], p)
     kept = keys[occ | free]
     state = np.where(occ[occ | free], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
     if len(kept) == 0:
