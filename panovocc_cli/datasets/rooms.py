@@ -251,6 +251,18 @@ class Home:
         for room in self.rooms:
             self._furnish_room(room)
 
+    def _checkpoint(self):
+        """The state furnishing a room changes (mesh, obstacles, rugs), for :meth:`_rollback`."""
+        return self.mb.mark(), len(self.obstacles), {k: len(v) for k, v in self.rugs.items()}
+
+    def _rollback(self, cp) -> None:
+        """Undo everything added since :meth:`_checkpoint` returned ``cp``."""
+        mark, n_obst, rugs = cp
+        self.mb.rollback(mark)
+        del self.obstacles[n_obst:]
+        for k in list(self.rugs):
+            del self.rugs[k][rugs.get(k, 0):]
+
     def _furnish_room(self, room: Room) -> None:
         """Furniture for a room of kind living (a small dining set too when the home has no dining room),
         bedroom, dining, office or studio (bed, living corner and small dining set in one room)."""
@@ -276,23 +288,28 @@ class Home:
 
     # ---- shell: floors, ceilings, walls, openings ----------------------------------------------
     def build_shell(self) -> None:
-        mb, pt, hc = self.mb, self.pt, self.hc
         for room in self.rooms:
             self._floor(room)
-            ceil = mb.new_object("ceiling", tint=0.02)
-            xs = np.linspace(room.x0, room.x1, int(np.ceil((room.x1 - room.x0) / 0.5)) + 1) - room.x0
-            ys = np.linspace(room.y0, room.y1, int(np.ceil((room.y1 - room.y0) / 0.5)) + 1) - room.y0
-            mb.grid(ceil, pt["ceiling"], (room.x0, room.y0, hc), (1, 0, 0), (0, 1, 0), xs, ys, (0, 0, -1))
-            nl = 2 if max(room.x1 - room.x0, room.y1 - room.y0) > 4.6 else 1
-            for k in range(nl):
-                f = (k + 0.5) / nl
-                c = (room.x0 + f * (room.x1 - room.x0), room.center[1]) if room.x1 - room.x0 >= room.y1 - room.y0 \
-                    else (room.center[0], room.y0 + f * (room.y1 - room.y0))
-                lo = mb.new_object("lamp")
-                mb.cylinder(lo, pt["light"], c, hc - 0.09, hc, self.rng.uniform(0.18, 0.28), n=16, top=False,
-                            bottom=True)
+            self._ceiling(room)
             for side in "SNWE":
                 self._wall(room, side)
+
+    def _ceiling(self, room: Room, lights: int | None = None) -> None:
+        """The ceiling over ``room`` at ``hc`` (0.5 m cells, facing down) with ``lights`` round ceiling lights
+        along its long axis (None: two in a room longer than 4.6 m, else one)."""
+        mb, pt, hc = self.mb, self.pt, self.hc
+        ceil = mb.new_object("ceiling", tint=0.02)
+        xs = np.linspace(room.x0, room.x1, int(np.ceil((room.x1 - room.x0) / 0.5)) + 1) - room.x0
+        ys = np.linspace(room.y0, room.y1, int(np.ceil((room.y1 - room.y0) / 0.5)) + 1) - room.y0
+        mb.grid(ceil, pt["ceiling"], (room.x0, room.y0, hc), (1, 0, 0), (0, 1, 0), xs, ys, (0, 0, -1))
+        nl = (2 if max(room.x1 - room.x0, room.y1 - room.y0) > 4.6 else 1) if lights is None else lights
+        for k in range(nl):
+            f = (k + 0.5) / nl
+            c = (room.x0 + f * (room.x1 - room.x0), room.center[1]) if room.x1 - room.x0 >= room.y1 - room.y0 \
+                else (room.center[0], room.y0 + f * (room.y1 - room.y0))
+            lo = mb.new_object("lamp")
+            mb.cylinder(lo, pt["light"], c, hc - 0.09, hc, self.rng.uniform(0.18, 0.28), n=16, top=False,
+                        bottom=True)
 
     def _floor(self, room: Room) -> None:
         mb, rng = self.mb, self.rng
@@ -316,8 +333,11 @@ class Home:
         # One quad per plank piece; pieces of one plank get different jitter, which reads as wear.
         mb.quads(fl, self.pt["floor"], np.array(quads, dtype=np.float64))
 
-    def _wall(self, room: Room, side: str) -> None:
-        mb, pt, hc = self.mb, self.pt, self.hc
+    def _wall(self, room: Room, side: str, top: float | None = None) -> None:
+        """The wall on ``side`` of ``room`` from the floor to ``top`` metres (None: the ceiling, ``hc``), 0.4 m
+        cells, holes for its openings, and the openings' reveals, panes, curtains and leaves."""
+        mb, pt = self.mb, self.pt
+        hc = self.hc if top is None else top
         wo = mb.new_object("wall", tint=0.015)
         lo, hi = room.side_range(side)
         ops = [o for o in room.openings if o.side == side]
@@ -381,12 +401,11 @@ class Home:
             mb.box(d, pt["handle"], hp, np.abs(room.P(o.side, 0.12, 0.06, 0.03) - room.P(o.side, 0, 0, 0)), cell=0.3)
         elif o.leaf_here:
             d = mb.new_object("door")
-            lw = w - 0.02
-            s0 = o.s0 + 0.005 if o.hinge_s0 else o.s1 - 0.045
+            s0, lw = _leaf(o)
             a = room.P(o.side, s0, -0.01, 0.005)
             b = room.P(o.side, s0 + 0.04, -0.01 - lw, o.z1 - 0.01)
             mb.box(d, pt["door"], (a + b) / 2, np.abs(b - a), omit=("-z",), cell=0.3)
-            self.obstacles.append(room.aabb(o.side, s0, s0 + 0.04, -0.01 - lw, -0.01))
+            self.obstacles.append(leaf_box(room, o))
 
     def _curtains(self, room: Room, o: Opening) -> None:
         mb = self.mb
@@ -408,3 +427,13 @@ class Home:
                     quads.append(p)
             mb.quads(c, self.pt["curtain"], np.array(quads))
 
+
+def _leaf(o: Opening) -> tuple[float, float]:
+    """(wall coordinate where the open leaf of door ``o`` starts, the leaf's width), metres."""
+    return (o.s0 + 0.005 if o.hinge_s0 else o.s1 - 0.045), (o.s1 - o.s0) - 0.02
+
+
+def leaf_box(room: Room, o: Opening) -> tuple[float, float, float, float]:
+    """The 2-D box (x0, x1, y0, y1) of door ``o``'s open leaf, 4 cm thick, standing at 90 degrees into ``room``."""
+    s0, lw = _leaf(o)
+    return room.aabb(o.side, s0, s0 + 0.04, -0.01 - lw, -0.01)

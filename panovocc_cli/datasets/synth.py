@@ -24,18 +24,21 @@ class SynthConfig:
     """Options of ``panovocc synth``.
 
     out: scene folder to write (Replica layout); seed: random seed; rooms: number of rooms (None:
-    2 or 3 drawn from the seed; 6-8 with ``house``); frames: trajectory poses (None: 60, or 300 with
-    ``house``); offset: (x, y, z) metres the home is moved from the origin (a user-chosen placement
+    2 or 3 drawn from the seed; 6-8 with ``house``; rooms a floor with ``building``, None: as many as
+    2,500 m² need); frames: trajectory poses (None: 60, 300 with ``house``, one every 0.2 m with
+    ``building``); offset: (x, y, z) metres the home is moved from the origin (a user-chosen placement
     relative to the voxel lattice; None: drawn from the seed); house: a house-scale home
-    (:mod:`panovocc_cli.datasets.house`).
+    (:mod:`panovocc_cli.datasets.house`); building: floors of rooms off corridors joined by a staircase
+    (:mod:`panovocc_cli.datasets.building`); floors: the building's floors (None: 3).
     """
 
     out: Path = option(argument=True, metavar="SCENE", help="Scene folder to write (Replica layout: "
                        "habitat/mesh_semantic.ply, habitat/info_semantic.json, traj.txt).")
     seed: int = option(DEFAULT_SEED, min=0, help="Random seed; the same seed gives the same files.")
-    rooms: int | None = option(None, min=1, max=8, help="Number of rooms, 1-6 (default: 2 or 3 from the seed); "
-                               "with --house 6-8 off a corridor (default: 6, 7 or 8 from the seed).")
-    frames: int | None = option(None, min=2, show_default="60; 300 with --house",
+    rooms: int | None = option(None, min=1, max=60, help="Number of rooms, 1-6 (default: 2 or 3 from the seed); "
+                               "with --house 6-8 off a corridor (default: 6, 7 or 8 from the seed); with --building "
+                               "2-60 a floor (default: as many as 2,500 m² of floor need).")
+    frames: int | None = option(None, min=2, show_default="60; 300 with --house; one every 0.2 m with --building",
                                 help="Number of trajectory poses.")
     offset: tuple[float, float, float] | None = option(
         None, cli_type=str, parse=lambda text: parse_offset(text), metavar="X,Y,Z",
@@ -43,6 +46,9 @@ class SynthConfig:
              "(e.g. 0,0,0 puts the floor on a voxel face).")
     house: bool = option(False, help="A house-scale home: 6-8 furnished rooms on both sides of a corridor, a long "
                                      "trajectory through all of them (the embedded Pan-Holo split's scene).")
+    building: bool = option(False, help="A building: floors of furnished rooms off a corridor, joined by a dog-leg "
+                                        "staircase; one walk through every room of every floor, up the stairs.")
+    floors: int | None = option(None, min=2, max=8, show_default="3", help="Floors of the building (--building only).")
     overwrite: bool = option(False, help="Replace a previous panovocc scene in SCENE (never any other folder).")
 
 
@@ -68,9 +74,19 @@ def run_synth(cfg: SynthConfig) -> dict:
     from .replica import TRAJ_NAME, write_replica_scene
     from .trajectory import path_length
 
-    cfg = validate_config(cfg)  # seed, rooms, frames: the ranges declared on SynthConfig
+    cfg = validate_config(cfg)  # seed, rooms, frames, floors: the ranges declared on SynthConfig
+    if cfg.house and cfg.building:
+        raise PanovoccError("--house and --building are two different scenes: give one of them")
+    if cfg.floors is not None and not cfg.building:
+        raise PanovoccError("--floors only applies with --building")
     check_output(cfg.out, "scene", cfg.overwrite)  # as the command line: never replace what synth did not write
-    if cfg.house:
+    if cfg.building:
+        from .building import BUILDING_FLOORS, generate_building
+
+        g = generate_building(cfg.seed, cfg.floors, cfg.rooms, cfg.frames, cfg.offset)
+        cfg = replace(cfg, floors=BUILDING_FLOORS if cfg.floors is None else cfg.floors,
+                      frames=len(g["T_world_cam"]))
+    elif cfg.house:
         from .house import HOUSE_FRAMES, generate_house
 
         cfg = replace(cfg, frames=HOUSE_FRAMES if cfg.frames is None else cfg.frames)
@@ -84,8 +100,9 @@ def run_synth(cfg: SynthConfig) -> dict:
         write_replica_scene(tmp, g["vertices"], g["quads"], g["face_object"], g["colors"], g["object_classes"])
         write_poses(tmp / TRAJ_NAME, g["T_world_cam"])
         write_run_config(tmp / CONFIG_NAME, cfg)
-    xy = g["T_world_cam"][:, :2, 3]
-    return {"rooms": len(g["rooms"]) - (1 if cfg.house else 0), "corridor": cfg.house,
-            "faces": int(len(g["quads"])), "objects": len(g["object_classes"]),
-            "classes": sorted({canonical_name(c) for c in g["object_classes"]}), "frames": len(xy),
-            "path_m": path_length(xy), "offset": [float(x) for x in g["offset"]]}
+    corridors = [k for k in g.get("room_kinds", []) if k in ("corridor", "stair")]
+    P = g["T_world_cam"][:, :3, 3]
+    return {"rooms": len(g["rooms"]) - len(corridors), "corridor": cfg.house, "floors": cfg.floors,
+            "floor_area": g.get("floor_area"), "faces": int(len(g["quads"])), "objects": len(g["object_classes"]),
+            "classes": sorted({canonical_name(c) for c in g["object_classes"]}), "frames": len(P),
+            "path_m": path_length(P if cfg.building else P[:, :2]), "offset": [float(x) for x in g["offset"]]}
