@@ -270,19 +270,18 @@ class _Floor(CorridorHouse):
         rail = mb.new_object("handrail", tint=0.03)
         y0, y1 = room.y0, room.y1
         fw = p.flight_w
-        if self.level > 0:  # this landing's slab edge over the well, and its balustrade
-            self._vquad(stair, "white", xa, (y0 + fw, y1 - fw), -p.slab, 0.0, +1)
-        if self.level > 0 or self.top:
-            ys = (y0, y1 - fw) if self.top else (y0 + fw, y1 - fw)  # on top the first flight's void too
-            self._rail_x(rail, xa - RAIL_T / 2, ys, 0.0)
+        if self.level > 0:  # the landing's slab edge over the well (on top also over the first flight's void)
+            edge = (y0, y1 - fw) if self.top else (y0 + fw, y1 - fw)
+            self._vquad(stair, "white", xa, edge, -p.slab, 0.0, +1)
+            self._rail_x(rail, xa - RAIL_T / 2, edge, 0.0)  # and its balustrade
         if not self.top:
             self._flights(stair, rail, room)
 
     def _vquad(self, obj: int, paint: str, x: float, ys: tuple[float, float], z0: float, z1: float,
                facing: int) -> None:
         """A vertical rectangle in the plane x = ``x``, facing +x (``facing`` = 1) or -x."""
-        q = np.array([[x, ys[0], z0], [x, ys[1], z0], [x, ys[1], z1], [x, ys[0], z1]])
-        self.mb.quads(obj, self.pt[paint], q if facing < 0 else q[::-1])
+        q = np.array([[x, ys[0], z0], [x, ys[1], z0], [x, ys[1], z1], [x, ys[0], z1]])  # counter-clockwise from +x
+        self.mb.quads(obj, self.pt[paint], q if facing > 0 else q[::-1])
 
     def _rail_x(self, obj: int, x: float, ys: tuple[float, float], z: float) -> None:
         """A balustrade panel across the shaft (centred on the plane x = ``x``) standing on height ``z``."""

@@ -201,6 +201,13 @@ def test_building_end_to_end_gt_render_map_eval(tmp_path, capsys):
     gt = read_grid(tmp_path / "gt.npz")
     assert "stair" in gt.class_names and "handrail" in gt.class_names
     assert gt.labels.shape[2] * gt.voxel_size > 2 * 2.5  # two storeys
+    from panovocc_cli.evaluation.show import floor_layers, floor_plans_figure
+    from panovocc_cli.io.poses import read_poses
+
+    assert len(floor_layers(gt)) == 2  # the floor plans find both floors
+    fig = floor_plans_figure(gt, read_poses(tmp_path / "scene" / "traj.txt"), width_px=600)
+    titles = [ax.get_title(loc="left") for ax in fig.axes if ax.get_title(loc="left")]
+    assert len(titles) == 2 and all("frames -" not in t for t in titles)  # the walk is on both
     code, _, err = run_cli(capsys, ["render", tmp_path / "scene", tmp_path / "seq", "--width", "128"])
     assert code == 0, err
     code, _, err = run_cli(capsys, ["map", tmp_path / "seq", tmp_path / "map", "--quiet"])
