@@ -8,7 +8,7 @@ DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
 DEMO := work/demo
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: setup demo test test-quick bench bench-render reproduce-tables clean help
+.PHONY: setup demo test test-quick bench bench-render bench-scale reproduce-tables clean help
 
 help:
 	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
@@ -16,6 +16,7 @@ help:
 	@echo "make test-quick  the suite without the end-to-end runs marked slow (pytest -m 'not slow')"
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
+	@echo "make bench-scale  the long-term memory at building scale: RAM, disk, time per frame early and late, revise"
 	@echo "make pan-holo  the embedded Pan-Holo split: a house, realistic depth, 300 frames, lifted ground truth"
 	@echo "make gt-protocol  lifted ground truth and the mapper against mesh truth (4 seeds, clean and realistic depth)"
 	@echo "make reproduce-tables [SMALL=1]  the whole benchmark (tables, figures) into results/ (SMALL: results/small/)"
@@ -34,7 +35,7 @@ $(STAMP): pyproject.toml Makefile
 	fi
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade pip 2>/dev/null || true
-	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test,clip]' 2>&1 | { grep -v "^WARNING: Location" || true; }
+	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check -e '.[test,clip,viz,ros]' 2>&1 | { grep -v "^WARNING: Location" || true; }
 	# pyrender pins PyOpenGL 3.1.0, whose OSMesa bindings are broken: take a fixed release after it.
 	set -o pipefail; $(BIN)/python -m pip install -q --disable-pip-version-check 'PyOpenGL>=3.1.7' 2>&1 | { grep -v -e "^WARNING: Location" -e "pyrender" -e "dependency resolver" || true; }
 	touch $(STAMP)
@@ -50,6 +51,11 @@ test-quick: setup
 
 bench: setup
 	$(BIN)/panovocc bench work/bench
+
+# The long-term memory at building scale (docs/mapping.md, "Scale"): synth --building, render at 512x256,
+# map, revise 1,000 frames; one table in work/bench-scale/scale.{md,csv,json}. SCALE_ARGS: e.g. --scene house.
+bench-scale: setup
+	$(BIN)/python -m panovocc_cli.benchmark.scale work/bench-scale $(SCALE_ARGS)
 
 bench-render: setup
 	$(BIN)/panovocc synth work/bench-scene --seed 0

@@ -77,3 +77,17 @@ class GtConfig:
     lift: LiftParams = field(default_factory=LiftParams)
     progress: bool = True
     overwrite: bool = option(False, help="Replace an existing OUT file (never an input).")
+
+
+@dataclass
+class S2d3dsGtConfig:
+    """Options of ``panovocc convert s2d3ds-gt``."""
+
+    annotations: Path = option(argument=True, metavar="AREA_DIR",
+                               help="An S3DIS area folder: ROOM/Annotations/<class>_<k>.txt (x y z r g b a line).")
+    out: Path = option(argument=True, metavar="GT.npz", help="Ground-truth grid to write (and GT.config.json beside it).")
+    voxel_size: float = option(DEFAULT_VOXEL_SIZE, min=0.0, min_open=True, help="Voxel edge in metres.")
+    rooms: str | None = option(None, help="Comma-separated rooms to use (e.g. office_1,office_2; default all).",
+                               show_default=False)
+    progress: bool = True
+    overwrite: bool = option(False, help="Replace an existing grid file.")

@@ -65,6 +65,18 @@ def keep_freed_heap() -> bool:
         return False
 
 
+def release_freed_heap() -> bool:
+    """Hand the heap memory that is free back to the kernel now (glibc ``malloc_trim(0)``): what
+    :func:`keep_freed_heap` kept for the per-frame updates, once they are done (before a run's export, so
+    the export's own temporaries do not stack on a frame's). True when glibc did it."""
+    import ctypes
+
+    try:
+        return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
+
+
 def setup() -> dict:
     """Apply the toolkit's process settings once (idempotent; a second call returns the first's answer).
 

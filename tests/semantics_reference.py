@@ -16,7 +16,7 @@ import numpy as np
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry.erp import latitudes, ray_directions
 from panovocc_cli.geometry.lattice import pack_keys, point_to_index
-from panovocc_cli.semantics.evidence import EvidenceWeights, measurement_weights, softmax
+from panovocc_cli.semantics.evidence import EvidenceWeights, measurement_weights, softmax, w_erp, w_range
 from panovocc_cli.semantics.simulated import (CONFIDENCE_MODELS, SimulatedConfig, _blob_partners, clean_logit_table,
                                               expected_labels, similarity_matrix)
 
@@ -122,16 +122,16 @@ def semantic_frame_delta(points_world: np.ndarray, probs: np.ndarray, eta: np.nd
     return keys, {"E": E, "S": S, "rgb_sum": rgb_sum, "normal_sum": normal_sum, "count": count}
 
 
-def frame_semantic_delta_numpy(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray, T_world_cam: np.ndarray,
-                         voxel_size: float, weights: EvidenceWeights = EvidenceWeights(),
-                         rays: np.ndarray | None = None):
-    """The whole per-frame semantic step for one ERP frame: back-project, weigh, accumulate.
+def frame_semantic_delta_numpy(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: np.ndarray,
+                               voxel_size: float, weights: EvidenceWeights = EvidenceWeights(),
+                               rays: np.ndarray | None = None):
+    """The whole per-frame semantic step for one ERP frame: back-project, weigh, accumulate (numpy).
 
     Parameters
     ----------
     depth : (H, W) float, metres, radial, 0 = invalid
     rgb : (H, W, 3) uint8
-    logits : (H, W, C) float, segmenter output over the vocabulary
+    obs : SemanticObservation at the semantic stride (ceil(H/s), ceil(W/s))
     T_world_cam : (4, 4) float64, camera-to-world pose
     voxel_size : float, metres
     weights : EvidenceWeights
@@ -141,23 +141,26 @@ def frame_semantic_delta_numpy(depth: np.ndarray, rgb: np.ndarray, logits: np.nd
     -------
     keys, channels : as :func:`semantic_frame_delta`
     """
+    from panovocc_cli.semantics.observation import measurement
+
     depth = np.asarray(depth, dtype=np.float64)
     h, w = depth.shape
     s = weights.stride  # measurements: pixels (s i, s j), each weighing s^2
-    if np.shape(rgb)[:2] != (h, w) or np.shape(logits)[:2] not in ((h, w), (-(-h // s), -(-w // s))):
-        raise PanovoccError(f"depth {depth.shape}, rgb {np.shape(rgb)[:2]} and logits {np.shape(logits)[:2]} "
-                            "must have the same size")
+    if np.shape(rgb)[:2] != (h, w) or tuple(obs.shape) != (-(-h // s), -(-w // s)):
+        raise PanovoccError(f"depth {depth.shape}, rgb {np.shape(rgb)[:2]} and observation {obs.shape} disagree")
     if rays is None:
         rays = ray_directions(w, h)
     phi = latitudes(h)[::s]
-    if np.shape(logits)[:2] == (h, w):
-        logits = np.asarray(logits)[::s, ::s]
     depth, rgb, rays = depth[::s, ::s], np.asarray(rgb)[::s, ::s], np.asarray(rays)[::s, ::s]
     pts_cam = rays * depth[..., None]
     valid = np.isfinite(depth) & (depth > 0)
     normals = erp_normals(pts_cam, valid)
-    probs = softmax(logits)
-    eta = measurement_weights(probs, phi[:, None], depth, weights).astype(np.float64) * (s * s)
+    conf, share = measurement(obs)
+    probs = np.zeros(obs.shape + (obs.n_classes,), np.float32)
+    for k in (1, 0):  # (one class: both columns name class 0, the second with share 0)
+        np.put_along_axis(probs, obs.classes[..., k:k + 1].astype(np.int64), share[..., k:k + 1], axis=2)
+    eta = (conf.astype(np.float64) * w_erp(phi[:, None], weights.erp_power, weights.erp_floor)
+           * w_range(depth, weights.range_scale)).astype(np.float32).astype(np.float64) * (s * s)
     R, t = np.asarray(T_world_cam[:3, :3], np.float64), np.asarray(T_world_cam[:3, 3], np.float64)
     sel = valid & (eta > 0)
     pw = pts_cam[sel] @ R.T + t

@@ -22,16 +22,17 @@ from ._app import app
 # Importing a module registers its commands on ``app``, in the order --help lists them. They are
 # imported by load_commands(), after runtime.setup(): their config dataclasses (the options' single
 # declaration) live in modules that import numba, which reads its settings when first imported.
-COMMAND_MODULES = ("data_cmds", "views_cmds", "map_cmds", "eval_cmds", "holo_cmds", "traj_cmds", "demo_cmds",
-                   "baselines_cmds", "reproduce_cmds", "query_cmds")
+COMMAND_MODULES = ("data_cmds", "views_cmds", "map_cmds", "eval_cmds", "holo_cmds", "import_cmds", "traj_cmds",
+                   "demo_cmds", "baselines_cmds", "reproduce_cmds", "query_cmds", "viz_cmds")
 # the modules that register each command: running one imports only these (a command not listed here
 # loads every module, so a missing entry costs start-up time, never correctness)
 COMMAND_HOMES = {
     "synth": ("data_cmds",), "render": ("data_cmds",), "gt": ("data_cmds",), "views": ("views_cmds",),
     "map": ("map_cmds",), "revise": ("map_cmds",), "segeval": ("map_cmds",), "bench": ("map_cmds",),
-    "eval": ("eval_cmds",), "coverage": ("eval_cmds",), "show": ("eval_cmds",), "convert": ("eval_cmds", "holo_cmds"),
+    "eval": ("eval_cmds",), "coverage": ("eval_cmds",), "show": ("eval_cmds",), "convert": ("eval_cmds", "holo_cmds", "import_cmds"),
     "traj": ("traj_cmds",), "demo": ("demo_cmds",), "baselines": ("baselines_cmds",),
-    "reproduce": ("reproduce_cmds",), "query": ("query_cmds",), "relabel": ("query_cmds",), "version": (),
+    "reproduce": ("reproduce_cmds",), "query": ("query_cmds",), "relabel": ("query_cmds",), "view": ("viz_cmds",),
+    "version": (),
 }
 
 

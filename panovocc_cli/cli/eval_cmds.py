@@ -16,7 +16,8 @@ from ..evaluation.run import ConvertReplicaOccConfig, ConvertToReplicaOccConfig,
 from ._app import app
 from .options import OptionValues, config_command
 
-convert_app = typer.Typer(help="Convert ground truth between the ReplicaOcc/FreeOcc .pkl form and grid .npz.",
+convert_app = typer.Typer(help="Bring data in: datasets to sequences (Holo360D, Stanford 2D-3D-S, ROS bags), ground "
+                               "truth to grids (ReplicaOcc/FreeOcc .pkl, 2D-3D-S annotations) and back (docs/datasets.md).",
                           no_args_is_help=True, context_settings={"help_option_names": ["-h", "--help"]})
 app.add_typer(convert_app, name="convert")
 

@@ -21,16 +21,20 @@ def convert_holo360d_cmd(o: OptionValues, quiet: bool = typer.Option(False, "--q
     typer.echo(f"{o['out']}: {s['frames']} frames {s['width']}x{s['height']}"
                + (f", {len(s['skipped'])} stems skipped (a modality missing: {s['skipped'][0]}"
                   + (", ..." if len(s['skipped']) > 1 else "") + ")" if s["skipped"] else ""))
-    c = s["check"]
-    if c is not None:
-        if not c["pairs"]:
-            typer.echo("check: fewer than two frames, nothing to compare")
-            return
-        typer.echo(f"check: {c['pairs']} frame pairs, median baseline {c['median_baseline_m']:.2f} m, "
-                   f"rotation {c['median_rotation_deg']:.1f} deg; depth agreement under {c['chosen']}: "
-                   f"{c['agreement']:.1f}%")
-        others = ", ".join(f"{k} {v:.1f}%" for k, v in sorted(c["all"].items(), key=lambda kv: -kv[1]))
-        typer.echo(f"check: every form: {others}")
-        if c["best"] != c["chosen"] and c["all"][c["best"]] > c["agreement"] + 5.0:
-            typer.echo(f"check: {c['best']} agrees better than the chosen {c['chosen']}: "
-                       f"rerun with --pose-form {c['best'].split('/')[0]} --camera-axes {c['best'].split('/')[1]}")
+    if s["check"] is not None:
+        echo_check(s["check"])
+
+
+def echo_check(c: dict) -> None:
+    """Print a pose-convention check's report (datasets/holo360d.py ``pose_check``; also convert s2d3ds)."""
+    if not c["pairs"]:
+        typer.echo("check: fewer than two frames, nothing to compare")
+        return
+    typer.echo(f"check: {c['pairs']} frame pairs, median baseline {c['median_baseline_m']:.2f} m, "
+               f"rotation {c['median_rotation_deg']:.1f} deg; depth agreement under {c['chosen']}: "
+               f"{c['agreement']:.1f}%")
+    others = ", ".join(f"{k} {v:.1f}%" for k, v in sorted(c["all"].items(), key=lambda kv: -kv[1]))
+    typer.echo(f"check: every form: {others}")
+    if c["best"] != c["chosen"] and c["all"][c["best"]] > c["agreement"] + 5.0:
+        hint = c.get("hint") or (f"--pose-form {c['best'].split('/')[0]} --camera-axes {c['best'].split('/')[1]}")
+        typer.echo(f"check: {c['best']} agrees better than the chosen {c['chosen']}: rerun with {hint}")

@@ -28,9 +28,49 @@ def map_cmd(
     resume: bool = typer.Option(False, "--resume", help="Continue the interrupted run in OUT (its config is used)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a map already in OUT."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    rerun: Path = typer.Option(None, "--rerun", metavar="FILE.rrd", show_default=False,
+                               help="Log the run live to this Rerun recording: each frame's panorama, depth and "
+                                    "pose, the growing map, SLAM loop closures and revisions (rerun-sdk)."),
+    rerun_connect: bool = typer.Option(False, "--rerun-connect", help="Stream the live log to a running Rerun "
+                                       "viewer (start one with: rerun) instead of a file."),
+    rerun_url: str = typer.Option(None, "--rerun-url", show_default=False,
+                                  help="The viewer's gRPC URL for --rerun-connect (default "
+                                       "rerun+http://127.0.0.1:9876/proxy)."),
+    rerun_every: int = typer.Option(10, "--rerun-every", min=1, help="Frames between two logs of the growing map."),
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
     (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
+    live = _live_log(rerun, rerun_connect, rerun_url, rerun_every, overwrite)
+    try:
+        summary = _map(o, config, resume, overwrite, quiet, live)
+        if live is not None:
+            live.close(ok=True)
+    finally:
+        if live is not None:
+            live.close(ok=False)
+    _report(summary)
+    if live is not None and rerun is not None:
+        typer.echo(f"live log -> {rerun} (open it with: rerun {rerun})")
+
+
+def _live_log(rrd, connect: bool, url, every: int, overwrite: bool):
+    """The Rerun live log of ``map --rerun`` / ``--rerun-connect`` (None without either); the .rrd path is
+    checked here, before the run."""
+    if url is not None and not connect:
+        raise PanovoccError("--rerun-url is the viewer address of --rerun-connect; give --rerun-connect too")
+    if rrd is None and not connect:
+        return None
+    if rrd is not None and connect:
+        raise PanovoccError("give --rerun FILE.rrd or --rerun-connect, not both")
+    from ..io.atomic import check_output
+    from ..viz.live import LiveLog
+
+    if rrd is not None:
+        check_output(rrd, "recording", overwrite, folder=False)
+    return LiveLog(rrd=rrd, connect=(url or "") if connect else None, every=every)
+
+
+def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live) -> dict:
     from ..mapping.pipeline import run_map
 
     seq, out = o["seq"], o["out"]
@@ -41,7 +81,7 @@ def map_cmd(
         given = [o.flags[n] for n in o.given if n not in ("seq", "out")] + (["--config"] if config is not None else [])
         if given:
             raise PanovoccError(f"--resume reuses the run's saved config; {', '.join(sorted(given))} cannot change it")
-        summary = run_map(resume_out=target, progress=not quiet)
+        return run_map(resume_out=target, progress=not quiet, observer=live)
     else:
         from_file = apply_config_file(o, config) if config is not None else set()
         seq, out = o["seq"], o["out"]
@@ -57,9 +97,11 @@ def map_cmd(
         if cfg.poses == POSES_SLAM:  # poses estimated online (slam/run.py); SEQ/poses.txt is never read
             from ..slam.run import run_map_slam
 
-            summary = run_map_slam(cfg, overwrite=overwrite, progress=not quiet)
-        else:
-            summary = run_map(cfg, overwrite=overwrite, progress=not quiet)
+            return run_map_slam(cfg, overwrite=overwrite, progress=not quiet, observer=live)
+        return run_map(cfg, overwrite=overwrite, progress=not quiet, observer=live)
+
+
+def _report(summary: dict) -> None:
     classed = f", {summary['classed']} with a class" if "classed" in summary else ""
     if "corrected" in summary:
         classed += f", {summary['corrected']} pose corrections applied"

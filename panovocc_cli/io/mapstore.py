@@ -95,17 +95,52 @@ def _unshuffled(z, files, key: str) -> np.ndarray:
     return a.astype(np.int64)
 
 
-def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, np.ndarray]) -> None:
+def _factored(channels: Mapping[str, np.ndarray], factors: Mapping[str, tuple] | None, n: int) -> tuple[dict, dict]:
+    """The channels with each one that factors as ``factor * m / denominator`` (``factors``: name ->
+    (factor channel, denominator)) replaced by the integer array m, and the factorisations that held.
+    A hint that does not hold exactly on every row (m not an integer, or the channel non-zero where its
+    factor is 0) leaves that channel as it is."""
+    out, used = dict(channels), {}
+    for name, (fname, den) in (factors or {}).items():
+        if name not in channels or fname not in channels or fname in (factors or {}) or isinstance(
+                channels[name], SparseRows) or isinstance(channels[fname], SparseRows):
+            continue
+        x = np.asarray(channels[name], np.int64).reshape(n, -1)
+        f = np.asarray(channels[fname], np.int64).reshape(n, -1)
+        if f.shape[1] != 1:
+            continue
+        num = x * np.int64(den)
+        safe = np.where(f != 0, f, 1)
+        m = np.where(f != 0, num // safe, 0)
+        if np.array_equal(m * f, num):
+            out[name], used[name] = m, (fname, int(den))
+    return out, used
+
+
+def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, np.ndarray],
+                     factors: Mapping[str, tuple] | None = None) -> None:
     """Put ``channels`` ((n, width) integer arrays) into ``arrays`` as ``{prefix}ch_NAME``, each in the
-    smallest signed integer type that holds it, stored as byte planes (:func:`_shuffled`). A channel that
-    is zero on most rows is stored as its non-zero rows and their row indices as differences
-    ``{prefix}rows_NAME``: zlib no longer spends its time on zeros."""
+    smallest signed integer type that holds it, stored as byte planes (:func:`_shuffled`).
+
+    * A channel that is zero on most rows is stored as its non-zero rows and their row indices as
+      differences ``{prefix}rows_NAME``: zlib no longer spends its time on zeros.
+    * A channel of width >= 4 whose kept rows are mostly zeros (a class distribution over a vocabulary)
+      is stored as its non-zero entries, with the bit mask of where they are (``{prefix}nz_NAME``, packed
+      bits, shape ``{prefix}nzshape_NAME``).
+    * A channel that factors (``factors``, :func:`_factored`) is stored as the integer m of
+      ``channel = factor * m / denominator``, with ``{prefix}fac_NAME`` = the denominator and
+      ``{prefix}facby_NAME`` = the factor channel's name (UTF-8 bytes).
+    """
+    channels, used = _factored(channels, factors, n)
+    for name, (fname, den) in used.items():
+        arrays[f"{prefix}fac_{name}"] = np.array([den], np.int64)
+        arrays[f"{prefix}facby_{name}"] = np.frombuffer(fname.encode(), np.uint8).copy()
     for name, arr in channels.items():
         if isinstance(arr, SparseRows):
             nz = np.asarray(arr.values).any(axis=1)
             rows, vals = np.asarray(arr.rows, np.int64)[nz], np.asarray(arr.values)[nz]
             if 2 * len(rows) < n:
-                _shuffled(arrays, f"{prefix}ch_{name}", _compact(vals))
+                _put_values(arrays, prefix, name, _compact(vals))
                 arrays[f"{prefix}rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
                 continue
             arr = SparseRows(rows, vals, n).dense()
@@ -113,10 +148,28 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
         arr = arr.reshape(n, arr.shape[-1] if arr.ndim == 2 else -1) if n == 0 else arr.reshape(n, -1)
         rows = np.flatnonzero(arr.any(axis=1)) if n else np.zeros(0, np.int64)
         if 2 * len(rows) < n:
-            _shuffled(arrays, f"{prefix}ch_{name}", _compact(arr[rows]))
+            _put_values(arrays, prefix, name, _compact(arr[rows]))
             arrays[f"{prefix}rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
         else:
-            _shuffled(arrays, f"{prefix}ch_{name}", _compact(arr))
+            _put_values(arrays, prefix, name, _compact(arr))
+
+
+def _put_values(arrays: dict, prefix: str, name: str, a: np.ndarray) -> None:
+    """A channel's kept rows ``a`` (m, width): as byte planes, or, when wide and mostly zeros, as its
+    non-zero entries and their bit mask; values with a common divisor g > 1 as the quotients and g
+    (``{prefix}gcd_NAME``) (:func:`_encode_channels`)."""
+    g = int(np.gcd.reduce(np.abs(a.astype(np.int64)), axis=None)) if a.size else 0
+    if g > 1:
+        arrays[f"{prefix}gcd_{name}"] = np.array([g], np.int64)
+        a = _compact(a.astype(np.int64) // g)
+    if a.ndim == 2 and a.shape[1] >= 4:
+        mask = a != 0
+        k = int(mask.sum())
+        if 3 * k < a.size:
+            arrays[f"{prefix}nz_{name}"] = np.packbits(mask, axis=None)
+            arrays[f"{prefix}nzshape_{name}"] = np.array(a.shape, np.int64)
+            a = a[mask].reshape(k, 1)
+    _shuffled(arrays, f"{prefix}ch_{name}", a)
 
 
 def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
@@ -130,6 +183,15 @@ def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
             continue
         name = k[len(head):]
         vals = _unshuffled(z, files, k)
+        if f"{prefix}gcd_{name}" in files:
+            vals = vals * int(np.asarray(z[f"{prefix}gcd_{name}"]).reshape(-1)[0])
+        if f"{prefix}nz_{name}" in files:  # non-zero entries and their mask
+            shape = tuple(int(x) for x in np.asarray(z[f"{prefix}nzshape_{name}"]))
+            mask = np.unpackbits(np.asarray(z[f"{prefix}nz_{name}"], np.uint8),
+                                 count=int(np.prod(shape, dtype=np.int64))).astype(bool).reshape(shape)
+            full = np.zeros(shape, np.int64)
+            full[mask] = vals.reshape(-1)
+            vals = full
         if f"{prefix}rows_{name}" in files:  # sparse rows
             rows = np.cumsum(np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64))
             if sparse:
@@ -140,6 +202,14 @@ def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
             ch[name] = full
         else:
             ch[name] = vals if vals.ndim == 2 else vals.reshape(n, -1)
+    for name in [k[len(prefix) + 4:] for k in sorted(files) if k.startswith(f"{prefix}fac_")]:
+        den = int(np.asarray(z[f"{prefix}fac_{name}"]).reshape(-1)[0])
+        fname = bytes(np.asarray(z[f"{prefix}facby_{name}"], np.uint8)).decode()
+        f = ch[fname]
+        f = f.dense() if isinstance(f, SparseRows) else f
+        m = ch[name]
+        m = m.dense() if isinstance(m, SparseRows) else m
+        ch[name] = (m * f) // den
     return ch
 
 
@@ -221,7 +291,7 @@ def read_memory(folder: str | Path, sparse: bool = False) -> tuple[dict, int, np
                             "its first checkpoint)", path)
     try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files if not k.startswith(("ch_", "rows_"))}
+            arrays = {k: z[k] for k in z.files if not k.startswith(("ch_", "rows_", "nz_", "nzshape_", "fac", "gcd_"))}
             keys = np.asarray(arrays["keys"], np.int64)
             if int(arrays.pop("keys_are_diffs", 0)):  # older memory files store the keys themselves
                 keys = np.cumsum(keys)
@@ -333,40 +403,82 @@ def decode_arrays(payload: bytes) -> dict:
     return out
 
 
-def delta_arrays(parts, T_world_cam: np.ndarray) -> dict:
-    """One frame's delta as named arrays (the layout :func:`write_delta` documents)."""
+_GAP_MAX = 32767  # key gaps stored in int16; larger ones (rare: a new row of voxels) as int64 apart
+_GAP_JUMP = -32768  # the int16 marking a gap stored apart
+
+
+def delta_arrays(parts, T_world_cam: np.ndarray, observation: Mapping[str, np.ndarray] | None = None) -> dict:
+    """One frame's delta as named arrays (the layout :func:`write_delta` documents). ``parts``: (keys,
+    channels) or (keys, channels, factors) per contributor (factors: :func:`_encode_channels`);
+    ``observation``: arrays kept with the delta as ``obs_NAME`` (a frame's semantic observation)."""
     arrays = {"T_world_cam": np.asarray(T_world_cam, np.float64)}
-    for i, (keys, channels) in enumerate(parts):
+    for i, part in enumerate(parts):
+        keys, channels = part[0], part[1]
         pre = _part_prefix(i)
-        arrays[f"{pre}keys_diff"] = np.diff(np.asarray(keys, np.int64), prepend=np.int64(0))
-        _encode_channels(arrays, pre, len(keys), channels)
+        keys = np.asarray(keys, np.int64)
+        gaps = np.diff(keys)  # the first key apart; gaps in int16, the few larger ones (a new row) apart
+        jump = np.abs(gaps) > _GAP_MAX
+        arrays[f"{pre}keys_diff"] = np.where(jump, _GAP_JUMP, gaps).astype(np.int16)
+        arrays[f"{pre}keys_jumps"] = gaps[jump]
+        arrays[f"{pre}keys_first"] = keys[:1]
+        _encode_channels(arrays, pre, len(keys), channels, part[2] if len(part) > 2 else None)
+    for name, a in (observation or {}).items():
+        arrays[f"obs_{name}"] = np.asarray(a)
     return arrays
 
 
-def arrays_delta(z: Mapping[str, np.ndarray]) -> tuple[list, np.ndarray]:
-    """Inverse of :func:`delta_arrays`: (parts, T_world_cam (4, 4))."""
+class DeltaRecord(NamedTuple):
+    """A decoded PUT record: parts (keys (n,) int64, channels dict name -> (n, width) int64) per
+    contributor, the pose (4, 4) float64, and the observation arrays (None when the record has none)."""
+
+    parts: list
+    T_world_cam: np.ndarray
+    observation: dict | None
+
+
+def arrays_record(z: Mapping[str, np.ndarray]) -> DeltaRecord:
+    """Inverse of :func:`delta_arrays`."""
     parts = []
     while f"{_part_prefix(len(parts))}keys_diff" in z:
         pre = _part_prefix(len(parts))
-        keys = np.cumsum(np.asarray(z[f"{pre}keys_diff"]).astype(np.int64))
+        gaps = np.asarray(z[f"{pre}keys_diff"]).astype(np.int64)
+        if f"{pre}keys_jumps" in z:
+            jump = gaps == _GAP_JUMP
+            gaps[jump] = np.asarray(z[f"{pre}keys_jumps"], np.int64)
+        if f"{pre}keys_first" in z:  # the first key, then the gaps
+            gaps = np.concatenate([np.asarray(z[f"{pre}keys_first"], np.int64).reshape(-1), gaps])
+        keys = np.cumsum(gaps)
         parts.append((keys, _decode_channels(z, pre, len(keys))))
     T = np.asarray(z["T_world_cam"], np.float64)
     if T.shape != (4, 4):
         raise ValueError(f"delta pose has shape {T.shape}, expected (4, 4)")
-    return parts, T
+    obs = {k[4:]: np.asarray(v) for k, v in z.items() if k.startswith("obs_")}
+    return DeltaRecord(parts, T, obs or None)
 
 
-def encode_delta(parts, T_world_cam: np.ndarray) -> bytes:
-    """A PUT record's payload."""
-    return encode_arrays(delta_arrays(parts, T_world_cam))
+def arrays_delta(z: Mapping[str, np.ndarray]) -> tuple[list, np.ndarray]:
+    """Inverse of :func:`delta_arrays`: (parts, T_world_cam (4, 4))."""
+    rec = arrays_record(z)
+    return rec.parts, rec.T_world_cam
+
+
+def encode_delta(parts, T_world_cam: np.ndarray, observation: Mapping[str, np.ndarray] | None = None) -> bytes:
+    """A PUT record's payload (:func:`delta_arrays`)."""
+    return encode_arrays(delta_arrays(parts, T_world_cam, observation))
+
+
+def decode_record(payload: bytes, where=None) -> DeltaRecord:
+    """A PUT record's payload -> :class:`DeltaRecord`."""
+    try:
+        return arrays_record(decode_arrays(payload))
+    except Exception as e:  # noqa: BLE001 - any unreadable payload is the same failure
+        raise PanovoccError(f"cannot read delta ({type(e).__name__}: {e})", where) from None
 
 
 def decode_delta(payload: bytes, where=None) -> tuple[list, np.ndarray]:
     """A PUT record's payload -> (parts, T_world_cam)."""
-    try:
-        return arrays_delta(decode_arrays(payload))
-    except Exception as e:  # noqa: BLE001 - any unreadable payload is the same failure
-        raise PanovoccError(f"cannot read delta ({type(e).__name__}: {e})", where) from None
+    rec = decode_record(payload, where)
+    return rec.parts, rec.T_world_cam
 
 
 def _entry(shard: int, end: int) -> bytes:

@@ -160,20 +160,23 @@ def panovocc_update_pass(depths, poses, geo):
 
 
 def semantic_update_pass(depths, rgbs, logits, poses, geo, vocab_size: int, weights):
-    """A callable that runs the semantic update (:func:`.semantic.semantic_delta` from the given logits,
-    then :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
+    """A callable that runs the semantic update (the observation of the given logits,
+    :func:`.semantic.semantic_delta` from it, then :meth:`~.memory.VoxelMemory.add`) of every frame into a fresh memory and returns ms per frame
     (one warm-up pass first). ``weights``: the map command's resolved EvidenceWeights (its stride)."""
     from ..geometry.erp import ray_directions
     from .memory import VoxelMemory
+    from ..semantics.observation import observe
     from .semantic import semantic_channels, semantic_delta
 
     rays = ray_directions(depths[0].shape[1])
+    s = int(weights.stride)
 
     def run():
         mem = VoxelMemory(geo.voxel_size, semantic_channels(vocab_size))
         t0 = time.perf_counter()
         for d, c, lg, T in zip(depths, rgbs, logits, poses):
-            mem.add(semantic_delta(d, c, lg, T, geo.voxel_size, weights, geo.min_range, geo.max_range, rays))
+            obs = observe(lg if lg.shape[:2] != d.shape else lg[::s, ::s])
+            mem.add(semantic_delta(d, c, obs, T, geo.voxel_size, weights, geo.min_range, geo.max_range, rays))
         return 1e3 * (time.perf_counter() - t0) / len(depths)
 
     run()

@@ -26,7 +26,9 @@ from .params import GeometryParams, OccupancyParams
 if TYPE_CHECKING:  # pragma: no cover
     from .mapper import MapperConfig
 
-FORMAT_VERSION = 3  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule
+FORMAT_VERSION = 4  # of a map folder; 3: footprint-fitted surfels, N = frames with a measurement, occupancy rule;
+#                    4: semantic channels from kept observations, in integer steps (mapping/semantic.py)
+SEMANTIC_FORMAT = 4  # the first format whose semantic channels this panovocc reads
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 SEGMENTER_NONE = "none"
@@ -141,6 +143,10 @@ class MapConfig:
     poses_reference: str | None = option(None, cli_type=Path, parse=str,
                                          help="Reference trajectory of --poses-align; default SEQ/poses.txt.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
+    frame_times: str | None = option(None, cli_type=Path, parse=str,
+                                     help="Write a CSV of every frame's cost (frame, wall and process CPU "
+                                          "seconds since the first frame, update ms, checkpoint 0/1, resident "
+                                          "MB) to this file.")
     # the map's local origin, metres, world (voxel keys are relative to it); None = the first frame's voxel
     origin: list | None = option(None, cli_type=str, parse=lambda t: parse_origin(t),
                                  help="Map origin X,Y,Z in metres (world), snapped to the voxel lattice; voxel keys "
@@ -180,7 +186,8 @@ class MapConfig:
             s = SemanticParams.from_json(d.get("semantic"))
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
-                       checkpoint_every=int(d["checkpoint_every"]), geometry=g, occupancy=o,
+                       checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
+                       geometry=g, occupancy=o,
                        origin=None if d.get("origin") is None else [float(v) for v in d["origin"]],
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
                        semantic=s, ablation=AblationParams.from_json(d.get("ablation")))

@@ -20,15 +20,16 @@ kept as two parts over their own voxels (:class:`~.memory.FrameDelta`).
 The deltas are kept by the reversible persistent update (:mod:`.rpu`), so the memory is always their exact
 integer sum.
 
-Revising a frame recomputes its delta from the frame's data under the new pose. Where that data comes
-from is the caller's choice:
+Revising a frame recomputes its delta under the new pose from the frame's depth and colours and from
+the semantic observation kept with its delta (the segmenter's output reduced once,
+:mod:`panovocc_cli.semantics.observation`): no segmenter runs again. Where depth and colours come from is
+the caller's choice:
 
-* ``frame_source=None`` (default): ``integrate`` keeps a reference to each Frame's arrays (not a copy).
-  At 1024x512 that is 3.5 MB per frame (depth 2 MB, rgb 1.5 MB) plus 2 MB per class of logits (25 MB
-  with 12 classes): fine for a few hundred frames or short windows, not for a 2,000-frame sequence;
+* ``frame_source=None`` (default): ``integrate`` keeps a reference to each Frame's depth and colours (not a
+  copy; its logits are dropped). At 1024x512 that is 3.5 MB per frame (depth 2 MB, rgb 1.5 MB): fine for
+  a few hundred frames or short windows, not for a 2,000-frame sequence;
 * ``frame_source=callable(frame_id) -> Frame``: nothing is kept; ``revise`` asks for the frame again
-  (its pose is ignored). The map commands pass a reader of the sequence folder that reruns the (seeded,
-  deterministic) segmenter, so a revision recomputes exactly what mapping computed.
+  (its pose and logits are ignored). The map commands pass a reader of the sequence folder.
 
 Deltas themselves stay in RAM (``folder=None``) or go to ``folder/deltas/`` as they are made (sizes:
 docs/mapping.md, "Delta store size").
@@ -52,7 +53,7 @@ from ..semantics.evidence import EvidenceWeights
 from ..semantics.gsc import GSCParams
 from .contributors import geometry_delta
 from .export import MapExport, export_memory
-from .config import FORMAT_VERSION, mapper_gsc_params
+from .config import FORMAT_VERSION, SEMANTIC_FORMAT, mapper_gsc_params
 from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
 from .params import GeometryParams, OccupancyParams
 from .rpu import DeltaStore, ReversibleMemory, has_store
@@ -143,6 +144,10 @@ class MapperConfig:
             o = OccupancyParams(**d["occupancy"])
             s = d.get("semantic") or {}
             vocab = [] if s.get("segmenter") == "none" else list(s.get("vocab") or [])
+            if vocab and version < SEMANTIC_FORMAT:
+                raise PanovoccError(f"a semantic map of format {version}, whose class evidence this panovocc no "
+                                    f"longer reads (format {SEMANTIC_FORMAT} keeps segmenter observations in integer "
+                                    "steps): map the sequence again", where)
             gsc = dataclasses.replace(mapper_gsc_params(), **s.get("gsc", {}))
             weights = EvidenceWeights(**s.get("weights", {}))
             origin = d.get("origin")  # absent: a map made before local origins (keys relative to the world's)
@@ -157,23 +162,37 @@ def has_measurement(depth: np.ndarray) -> bool:
     return bool(np.any(np.asarray(depth) > 0))
 
 
-def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = None) -> FrameDelta:
-    """One frame's delta: the geometry's part, and the semantics' part when the frame has logits and
-    ``config`` a vocabulary (kept apart, each over its own voxels: :class:`~.memory.FrameDelta`).
+def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = None,
+                observation=None) -> FrameDelta:
+    """One frame's delta: the geometry's part, and the semantics' part when ``config`` has a vocabulary and
+    the frame logits or ``observation`` is given (kept apart, each over its own voxels:
+    :class:`~.memory.FrameDelta`, which also keeps the observation).
 
-    A frame without any valid depth (a dropped sensor frame, all zero) is an empty observation: an empty
-    delta. ``rays`` : (H, W, 3) float64 unit rays of the frame's camera (cached by the caller).
+    The semantic part is computed from the frame's :class:`~panovocc_cli.semantics.observation.
+    SemanticObservation`: ``observation`` when given (a revision: the one kept with the frame's delta),
+    else the observation of ``frame.logits``. A frame without any valid depth (a dropped sensor frame, all
+    zero) is an empty observation: an empty delta. ``rays`` : (H, W, 3) float64 unit rays of the frame's
+    camera (cached by the caller).
     """
     g = config.geometry
     if not has_measurement(frame.depth):
         return FrameDelta(())
     parts = [geometry_delta(frame.depth, frame.T_world_cam, g)]
-    if config.vocab and frame.logits is not None:
+    if config.vocab and (observation is not None or frame.logits is not None):
+        if observation is None:
+            from ..semantics.observation import observe
+
+            logits = np.asarray(frame.logits)
+            s = int(config.weights.stride)
+            H, W = frame.camera.shape
+            if logits.shape[:2] == (H, W) and s > 1:
+                logits = logits[::s, ::s]
+            observation = observe(logits)
         if rays is None:
             rays = frame.camera.rays()
-        parts.append(semantic_delta(frame.depth, frame.rgb, frame.logits, frame.T_world_cam, g.voxel_size,
+        parts.append(semantic_delta(frame.depth, frame.rgb, observation, frame.T_world_cam, g.voxel_size,
                                     config.weights, g.min_range, g.max_range, rays))
-    return FrameDelta(tuple(parts))
+    return FrameDelta(tuple(parts), observation)
 
 
 def _check_pose(T, what: str) -> np.ndarray:
@@ -263,18 +282,22 @@ class Mapper:
         L[:3, 3] = t
         return dataclasses.replace(frame, T_world_cam=L)
 
-    def _delta(self, frame: Frame) -> FrameDelta:
+    def _delta(self, frame: Frame, observation=None) -> FrameDelta:
         frame.check()
         frame = self._local(frame)
-        if self.config.vocab and frame.logits is not None and np.shape(frame.logits)[2] != len(self.config.vocab):
+        C = len(self.config.vocab)
+        if C and observation is None and frame.logits is not None and np.shape(frame.logits)[2] != C:
             raise PanovoccError(f"frame {frame.index}: logits have {np.shape(frame.logits)[2]} classes, the "
-                                f"vocabulary {len(self.config.vocab)}")
+                                f"vocabulary {C}")
+        if C and observation is not None and observation.n_classes != C:
+            raise PanovoccError(f"frame {frame.index}: its kept semantic observation has {observation.n_classes} "
+                                f"classes, the vocabulary {C}")
         rays = None
-        if self.config.vocab and frame.logits is not None:
+        if C and (frame.logits is not None or observation is not None):
             rays = self._rays.get(frame.camera)
             if rays is None:
                 rays = self._rays[frame.camera] = frame.camera.rays()
-        return frame_delta(frame, self.config, rays)
+        return frame_delta(frame, self.config, rays, observation)
 
     def integrate(self, frame: Frame) -> int:
         """Add a frame; returns its id (``frame.index`` when set, else the next unused id).
@@ -292,28 +315,34 @@ class Mapper:
         self._rpu.keep(fid, delta, frame.T_world_cam)
         if len(delta) == 0:
             self.empty_frames.append(fid)
-        if self.frame_source is None:
-            self._frames[fid] = frame
+        if self.frame_source is None:  # the logits are not needed again: the delta keeps their observation
+            self._frames[fid] = dataclasses.replace(frame, logits=None) if delta.observation is not None else frame
         self._next_id = max(self._next_id, fid + 1)
         return fid
 
-    def revise(self, frame_id: int, T_world_cam: np.ndarray) -> bool:
+    def revise(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None = None) -> bool:
         """Move frame ``frame_id`` to pose ``T_world_cam`` (4, 4): its delta is recomputed and swapped in.
 
         Returns False (nothing done) when the pose is unchanged. Exact: the memory then equals that of a
-        map that had integrated the frame under this pose from the start.
+        map that had integrated the frame under this pose from the start. The frame's depth and colours
+        come from the kept Frame or ``frame_source``; its semantics from the observation kept with its
+        delta, so no segmenter runs (a ``frame_source`` need not segment; logits it gives are not used
+        when an observation is kept). ``frame``: the frame's data when the caller already has it (read
+        ahead: ``panovocc revise``); its pose and logits are ignored.
         """
         fid = int(frame_id)
         T = _check_pose(T_world_cam, f"frame {fid}")
         if np.array_equal(T, self.pose(fid)):
             return False
-        frame = self._frames.get(fid)
+        if frame is None:
+            frame = self._frames.get(fid)
         if frame is None:
             if self.frame_source is None:
                 raise PanovoccError(f"frame {fid}: its data is not kept (a loaded map needs a frame_source to revise)")
             frame = self.frame_source(fid)
+        old = self._rpu.store.get(fid)
         frame = dataclasses.replace(frame, T_world_cam=T)
-        self._rpu.revise(fid, self._delta(frame), T)
+        self._rpu.revise(fid, self._delta(frame, old.observation), T, old=old)
         if fid in self._frames:
             self._frames[fid] = frame
         return True

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import mmap
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numba as nb
@@ -90,10 +90,14 @@ class Delta:
 
     keys : (n,) int64, sorted, unique voxel keys
     channels : dict name -> (n, width) int64 (only channels the contributor produces)
+    factors : dict name -> (factor channel, denominator): how a channel factors (``channel = factor * m /
+        denominator`` with m an integer array), which the delta log stores instead of the product; a
+        hint only (the writer checks it and stores the product where it does not hold)
     """
 
     keys: np.ndarray
     channels: dict
+    factors: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.keys = np.asarray(self.keys, dtype=np.int64)
@@ -129,6 +133,8 @@ class FrameDelta:
     """
 
     parts: tuple
+    observation: object = None  # what the frame's semantic part was computed from besides depth, colours and
+    #                             pose (a SemanticObservation), kept so that a revision needs no segmenter
 
     def __post_init__(self):
         self.parts = tuple(p for p in self.parts if p is not None and len(p) and p.channels)
@@ -438,6 +444,9 @@ class NonzeroChannels(Mapping):
 
     def __iter__(self):
         return iter(s.name for s in self._memory.specs)
+
+    def __contains__(self, name) -> bool:  # without reading the channel (Mapping's default would read it)
+        return any(s.name == name for s in self._memory.specs)
 
     def __len__(self) -> int:
         return len(self._memory.specs)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import shutil
 import sys
 import time
@@ -33,7 +34,7 @@ from ..config import validate_config
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
-from ..io.atomic import check_output, clean_temporaries
+from ..io.atomic import check_output, clean_temporaries, write_text
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_poses, write_poses
@@ -77,9 +78,10 @@ def auto_semantic_stride(width: int) -> int:
 class SequenceFrames:
     """The map commands' frame source: frame ``i`` of a sequence folder, with the segmenter's logits.
 
-    Callable as ``frames(i) -> Frame`` (what ``Mapper(frame_source=...)`` asks for on ``revise``). The
-    segmenter runs here, in the run loop, never inside the mapper; the simulated one is seeded per frame,
-    so asking for a frame again gives the same logits.
+    Callable as ``frames(i) -> Frame`` (the run loop's frames, segmented); :meth:`read` gives the frame
+    without segmenting it (what ``Mapper(frame_source=...)`` asks for on ``revise``: the semantics of a
+    revised frame come from the observation kept with its delta). The segmenter runs here, in the run loop,
+    never inside the mapper.
 
     Parameters
     ----------
@@ -96,6 +98,11 @@ class SequenceFrames:
         self.segmenter = segmenter
         self.vocab = list(vocab)
         self.segmenter_seconds = 0.0  # time spent in the segmenter (run summaries)
+
+    def read(self, i: int) -> Frame:
+        """Frame ``i`` without segmenting it: what a revision needs (``Mapper(frame_source=frames.read)``;
+        its semantics come from the observation kept with the frame's delta)."""
+        return self.seq.frame(i)
 
     def __call__(self, i: int) -> Frame:
         frame = self.seq.frame(i)
@@ -159,10 +166,20 @@ def prefetched(frames, indices):
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-def write_exports(out: Path, mapper: Mapper, ply_color: str) -> dict:
-    """Write ``prediction.npz`` and ``map.ply`` of the mapper's current memory; return the counts
-    (occupied, free and, with semantics, classed voxels)."""
-    ex = mapper.export()
+def resident_mb() -> float:
+    """This process's resident memory now, MB (Linux ``/proc/self/statm``; NaN elsewhere)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def write_exports(out: Path, mapper: Mapper, ply_color: str, ex=None) -> dict:
+    """Write ``prediction.npz`` and ``map.ply`` of the mapper's current memory (``ex``: its export when the
+    caller already made it); return the counts (occupied, free and, with semantics, classed voxels)."""
+    if ex is None:
+        ex = mapper.export()
     write_grid(out / "prediction.npz", ex.grid)
     pts, cols = point_colors(ex, mapper.config.geometry.voxel_size, ply_color, mapper.config.vocab)
     write_ply_points(out / "map.ply", pts, cols)
@@ -316,7 +333,7 @@ def _remove_unless_started(out: Path) -> None:
 
 
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
-            progress: bool = True, stop_after: int | None = None, pose_source=None) -> dict:
+            progress: bool = True, stop_after: int | None = None, pose_source=None, observer=None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
 
     Parameters
@@ -330,6 +347,9 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         (slam/run.py). A frame it cannot place (None) is integrated as an empty observation at the last
         placed pose (so every frame has an id and a line in OUT/poses.txt) and listed in ``unplaced_frames``;
         each revision is applied at once with ``Mapper.revise``.
+    observer : optional; ``observer.frame(i, frame, mapper, revisions)`` is called after each frame is
+        integrated (and its revisions applied), ``observer.finish(mapper, summary)`` once the exports are
+        written (viz/live.py: the Rerun live log). It only reads; the map is the same with or without it.
 
     Returns
     -------
@@ -338,10 +358,11 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         observations)
     """
     with contextlib.ExitStack() as held:  # the folder lock (io/lock.py), taken once the folder is known
-        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source)
+        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source, observer)
 
 
-def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None) -> dict:
+def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None,
+             observer=None) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
@@ -353,7 +374,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if has_store(out):
-            mapper = Mapper.load(out, frame_source=frames)
+            mapper = Mapper.load(out, frame_source=frames.read)
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))
@@ -362,7 +383,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 mapper.close()
                 raise PanovoccError("the sequence's poses changed since the run started (use revise)", out)
         else:
-            mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
+            mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
     else:
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
@@ -376,6 +397,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
+        if cfg.frame_times is not None and Path(cfg.frame_times).exists() and not overwrite:
+            raise PanovoccError("already exists (use --overwrite to replace it)", cfg.frame_times)
         seq = _open_sequence(cfg)
         cfg = resolve_origin(resolve(cfg, seq.meta.width), seq.poses)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
@@ -399,7 +422,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapstore.write_map_config(out, cfg.to_json())
         if pose_source is None:
             write_poses(out / "poses.txt", seq.poses)
-        mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames), 0
+        mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
     n = len(seq)
     end = n if stop_after is None else min(n, stop_after)
     from tqdm import tqdm
@@ -412,6 +435,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     unplaced: list[int] = []
     last_T = np.eye(4)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
+    times = [] if cfg.frame_times else None
+    c0 = time.process_time()
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
               else ((i, frames(i)) for i in range(start, end)))
@@ -435,11 +460,18 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 corrected += schedule.apply(mapper, frames, i)
             for fid, T in revisions:
                 mapper.revise(fid, T)
-            t_compute += time.perf_counter() - tc
+            t_frame = time.perf_counter() - tc
+            t_compute += t_frame
+            if observer is not None:
+                observer.frame(i, frame, mapper, revisions)
             bar.update(1)
             done = i + 1
-            if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
+            ck = bool(cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n)
+            if ck:
                 mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
+            if times is not None:
+                times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
+                              resident_mb()))
     except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
@@ -447,6 +479,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     finally:
         mapper.close()
         bar.close()
+        if times is not None:
+            write_text(cfg.frame_times, "frame,t_s,cpu_s,update_ms,checkpoint,rss_mb\n" + "".join(
+                f"{i},{t:.4f},{cpu:.4f},{u:.3f},{c},{r:.1f}\n" for i, t, cpu, u, c, r in times))
     wall = time.perf_counter() - t0
     steps = max(end - start, 1)
     summary = {"frames": n, "integrated": end - start, "ms_per_frame": 1e3 * wall / steps,
@@ -461,11 +496,19 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     if end < n:
         summary.update(stopped_at=end)
         return summary
-    mapper.save(out, background=True)  # memory.npz compresses while the export runs
+    from ..runtime import release_freed_heap
+
+    release_freed_heap()  # the frames' freed temporaries, before the export's and the save's
+    # the export's labelling (GSC) first, then memory.npz compresses while the grid and PLY are written:
+    # the two largest sets of temporaries never stack (peak RSS, docs/mapping.md "Memory layout")
+    ex = mapper.export()
+    mapper.save(out, background=True)
     try:
-        summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
+        summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
     finally:
         mapper.close()  # waits for memory.npz (re-raises a failed write)
+    if observer is not None:
+        observer.finish(mapper, summary)
     return summary
 
 
@@ -508,7 +551,8 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         if len(new_poses) != k:
             raise PanovoccError(f"{len(new_poses)} poses, the map has {k} frames", poses_path)
         seq = _open_sequence(dataclasses.replace(cfg, poses=str(poses_path)), new_poses)
-        mapper.frame_source = sequence_frames(cfg, seq)
+        reader = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
+        mapper.frame_source = reader
         changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
@@ -516,8 +560,11 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         # until the save's COMMIT record the map is as it was: a failure leaves records that the next
         # opening cuts off
         try:
-            for i in tqdm(changed, desc="revise", unit="frame", file=sys.stderr, disable=not progress):
-                mapper.revise(i, new_poses[i])
+            bar = tqdm(total=len(changed), desc="revise", unit="frame", file=sys.stderr, disable=not progress)
+            for i, frame in prefetched(reader, changed):  # frame i + 1 is read while frame i is revised
+                mapper.revise(i, new_poses[i], frame=frame)
+                bar.update(1)
+            bar.close()
             mapper.save(out)
         except BaseException:
             mapper._rpu.rollback()

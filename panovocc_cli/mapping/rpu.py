@@ -87,8 +87,23 @@ def _compact_parts(delta: FrameDelta) -> list:
     return [(p.keys.copy(), {name: mapstore._compact(arr) for name, arr in p.channels.items()}) for p in delta.parts]
 
 
-def _frame_delta(parts) -> FrameDelta:
-    return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts))
+def _frame_delta(parts, observation=None) -> FrameDelta:
+    """A FrameDelta from decoded parts and observation arrays (None: none kept)."""
+    obs = None
+    if observation is not None:
+        from ..semantics.observation import SemanticObservation
+
+        obs = SemanticObservation.from_arrays(observation)
+    return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts), obs)
+
+
+def _record_parts(delta: FrameDelta) -> list:
+    """What a PUT record stores of a frame delta's parts: (keys, channels, factors) each."""
+    return [(p.keys, p.channels, p.factors) for p in delta.parts]
+
+
+def _observation_arrays(delta: FrameDelta):
+    return None if delta.observation is None else delta.observation.to_arrays()
 
 
 def has_store(folder: str | Path) -> bool:
@@ -140,21 +155,23 @@ class DeltaStore:
             raise PanovoccError(f"frame {fid} is not in the map")
         self.flush()
         if self.folder is None:
+            parts, obs = self._ram[fid]
             return FrameDelta(tuple(Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()})
-                                    for keys, ch in self._ram[fid]))
+                                    for keys, ch in parts), obs)
         return self._read(fid, self._locs[fid])
 
     def _read(self, fid: int, loc) -> FrameDelta:
         if loc[0] == LEGACY:
             path = mapstore.delta_path(self.folder, fid)
             parts, T = mapstore.read_delta(path)
+            obs = None
         else:
             path = mapstore.shard_path(self.folder, loc[0])
-            parts, T = mapstore.decode_delta(self._log.read(loc), path)
+            parts, T, obs = mapstore.decode_record(self._log.read(loc), path)
         if fid in self.poses and not np.array_equal(T, self.poses[fid]):
             raise PanovoccError(f"delta of frame {fid} was computed under another pose than the map holds "
                                 "(the map folder was changed by another process)", path)
-        return _frame_delta(parts)
+        return _frame_delta(parts, obs)
 
     def nbytes(self) -> int:
         """Bytes of the kept deltas on disk (the log's live records; 0 in RAM)."""
@@ -170,16 +187,16 @@ class DeltaStore:
         delta = _as_frame_delta(delta)
         if self.folder is None:
             self.poses[fid] = T
-            self._ram[fid] = _compact_parts(delta)
+            self._ram[fid] = (_compact_parts(delta), delta.observation)
             return
         self.flush()
         inflight = (fid, delta, old, self.poses.get(fid), self._locs.get(fid))
         self.poses[fid] = T
         self._inflight = inflight
-        self._submit(self._append_put, fid, [(p.keys, p.channels) for p in delta.parts], T)
+        self._submit(self._append_put, fid, _record_parts(delta), T, _observation_arrays(delta))
 
-    def _append_put(self, fid: int, parts, T) -> None:
-        self._locs[fid] = self._log.append(mapstore.PUT, fid, mapstore.encode_delta(parts, T))
+    def _append_put(self, fid: int, parts, T, observation=None) -> None:
+        self._locs[fid] = self._log.append(mapstore.PUT, fid, mapstore.encode_delta(parts, T, observation))
 
     def drop(self, frame_id: int) -> None:
         """Forget frame ``frame_id`` (a DROP record; committed with the next checkpoint or save)."""
@@ -268,7 +285,7 @@ class DeltaStore:
         for fid in self.ids():
             d = reading.get(fid)
             self._locs[fid] = log.append(mapstore.PUT, fid, mapstore.encode_delta(
-                [(p.keys, p.channels) for p in d.parts], self.poses[fid]))
+                _record_parts(d), self.poses[fid], _observation_arrays(d)))
             self._ram.pop(fid, None)  # free the RAM copy as soon as its record is written
         if old[2] is not None:
             old[2].close()
@@ -340,10 +357,13 @@ class ReversibleMemory:
         self.memory.add(delta, +1)
         self.store.put(frame_id, delta, T_world_cam)
 
-    def revise(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray) -> None:
-        """Subtract the kept delta of ``frame_id`` and add ``delta`` (recomputed under ``T_world_cam``)."""
+    def revise(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray,
+               old: FrameDelta | None = None) -> None:
+        """Subtract the kept delta of ``frame_id`` and add ``delta`` (recomputed under ``T_world_cam``);
+        ``old``: the kept delta when the caller has just read it (:meth:`DeltaStore.get`)."""
         self._flush()
-        old = self.store.get(frame_id)
+        if old is None:
+            old = self.store.get(frame_id)
         delta = _as_frame_delta(delta)
         self.memory.add(old, -1)
         self.memory.add(delta, +1)
@@ -455,7 +475,7 @@ class ReversibleMemory:
                 path = mapstore.shard_path(st.folder, loc[0])
                 parts, T = mapstore.decode_delta(st._log.read(loc), path)
                 st.poses[fid], st._locs[fid] = T, loc
-                self.memory.add(_frame_delta(parts), +1)
+                self.memory.add(FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts)), +1)
             else:
                 st.poses.pop(fid, None)
                 st._locs.pop(fid, None)

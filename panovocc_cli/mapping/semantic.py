@@ -1,26 +1,36 @@
 """The semantic side of ``panovocc map``: a per-frame semantic contributor and the labelled export.
 
-Per frame, the segmenter (``simulated`` or ``precomputed:DIR``) gives logits over the run's vocabulary;
-:func:`semantics.evidence.frame_semantic_delta` turns them into sparse per-voxel sums, which are
-quantised into memory channels and travel through the SAME delta mechanism as the geometry (delta
-files, ``revise``, ``--resume``: the memory stays the exact integer sum of the retained deltas).
+Per frame, the segmenter (``simulated`` or ``precomputed:DIR``) gives logits over the run's vocabulary,
+reduced once to the frame's :class:`~panovocc_cli.semantics.observation.SemanticObservation` (kept with the
+frame's delta, so a revision never runs the segmenter again);
+:func:`semantics.evidence.frame_semantic_delta` turns it into per-voxel float sums, which
+:func:`quantize_semantic_delta` turns into integer memory channels that travel through the SAME delta
+mechanism as the geometry (the delta log, ``revise``, ``--resume``: the memory stays the exact integer sum
+of the retained deltas).
 
-Channels (``C`` = vocabulary size):
+Channels (``C`` = vocabulary size), all exact integers. Per voxel and frame, with ``S_f`` the sum of the
+pixels' weights eta, ``D`` their eta-weighted mean class distribution, ``k`` the pixel count and
+``n_f``, ``c_f`` the sums of their normals and colours:
 
-==============  =====  ======  ============================================================
-name            width  kind    content
-==============  =====  ======  ============================================================
-``E``           C      fixed   sum of eta * p (2^-16 resolution)
-``S``           1      fixed   sum of eta
-``rgb_sum``     3      int     plain sum of pixel colours (0..255 integers: exact as integers)
-``normal_sum``  3      fixed   plain sum of unit normals
-``count``       1      int     pixels (measurements)
-==============  =====  ======  ============================================================
+==============  =====  ============================================================================
+name            width  per-frame delta
+==============  =====  ============================================================================
+``S``           1      ``64 s`` with ``s = round(256 S_f)``: the frame's weight in 1/256 steps
+``E``           C      ``s d`` with ``d`` = ``64 D`` rounded to integers summing to 64 (largest
+                       remainders): ``sum_c E = S``, so ``E / S`` is the weighted mean distribution
+``normal_sum``  3      ``k round(127 n_f / k)``: the mean normal in 1/127 steps, times the count
+``rgb_sum``     3      ``k round(c_f / k)``: the mean colour in grey levels, times the count
+``count``       1      ``k``, pixels (measurements)
+==============  =====  ============================================================================
 
-Overflow: eta <= 1 and |p|, |n| <= 1, so a frame adds at most (pixels in the voxel) * 2^16 to an E, S
-or normal_sum entry. Even a whole 2048x1024 frame falling into one voxel adds 2^37; int64 holds 2^63,
-i.e. 2^26 (67 million) such frames. Rounding error: at most 2^-17 per entry per frame (the per-frame
-sum is rounded once), far below a single pixel's weight.
+Each channel is a product of small per-voxel factors, which the delta log stores instead of the products
+(``io.mapstore``, factored channels: about a third of the bytes of the plain sums). The rounding is a
+deviation from the paper's float sums, documented in docs/semantics.md ("Semantic observation and
+evidence"); a weight below 1/512 in a voxel adds no class evidence there (its colour, normal and count
+still count).
+
+Overflow: a frame adds at most ``64 * 256 * (pixels in the voxel) * s^2`` to ``S`` (a whole 2048x1024 frame in
+one voxel: 2^35); the memory widens int32 to int64 as needed and refuses sums past int64.
 
 Export (:func:`label_occupied`): the occupied set comes from the geometry alone; over it,
 ``gsc.unaries`` (E/S, mean normal, mean colour), the mapper's signed score ``g`` and
@@ -41,7 +51,7 @@ from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.params import EvidenceWeights
 from .config import (PLY_COLORS, SEGMENTER_AUTO, SEGMENTER_NONE, SegevalConfig,  # noqa: F401  (re-exports)
                      SemanticParams, mapper_gsc_params)
-from .memory import ChannelSpec, Delta, quantize
+from .memory import ChannelSpec, Delta
 
 UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
 
@@ -86,35 +96,70 @@ def resolve(p: SemanticParams, seq) -> SemanticParams:
     return dataclasses.replace(p, segmenter=seg.spec or spec, vocab=list(vocab))
 
 
+S_STEPS = 256  # a frame's weight S_f in a voxel, in steps of 1 / S_STEPS
+D_STEPS = 64  # its class distribution, in steps of 1 / D_STEPS (summing to D_STEPS)
+NORMAL_STEPS = 127  # the mean normal's components, in steps of 1 / NORMAL_STEPS
+S_SCALE = S_STEPS * D_STEPS  # stored S (and E) per unit of eta
+DELTA_FACTORS = {"E": ("S", D_STEPS), "normal_sum": ("count", 1), "rgb_sum": ("count", 1)}
+"""How each semantic channel of a frame's delta factors (``channel = factor * m / denominator``, m an integer
+array): what the delta log stores instead of the product (:func:`panovocc_cli.io.mapstore.encode_delta`)."""
+
+
 def semantic_channels(n_classes: int) -> tuple[ChannelSpec, ...]:
-    """Memory channels of the semantic contributor for a vocabulary of ``n_classes`` words."""
-    return (ChannelSpec("E", n_classes, "fixed"), ChannelSpec("S", 1, "fixed"), ChannelSpec("rgb_sum", 3, "int"),
-            ChannelSpec("normal_sum", 3, "fixed"), ChannelSpec("count", 1, "int"))
+    """Memory channels of the semantic contributor for a vocabulary of ``n_classes`` words (all exact
+    integers: the module docstring)."""
+    return (ChannelSpec("E", n_classes, "int"), ChannelSpec("S", 1, "int"), ChannelSpec("rgb_sum", 3, "int"),
+            ChannelSpec("normal_sum", 3, "int"), ChannelSpec("count", 1, "int"))
+
+
+def distribution_steps(D: np.ndarray, steps: int = D_STEPS) -> np.ndarray:
+    """Rows of a distribution ``D`` (n, C) float (non-negative, summing to ~1) in integer steps summing to
+    exactly ``steps``: each ``steps * D`` rounded down, the remaining steps to the largest remainders (ties:
+    the lower class). (n, C) int64; rows of ``D`` that sum to 0 stay 0."""
+    D = np.asarray(D, np.float64)
+    x = D * steps
+    f = np.floor(x)
+    rest = (steps - f.sum(axis=1)).astype(np.int64)
+    rest = np.where(D.sum(axis=1) > 0, np.clip(rest, 0, D.shape[1]), 0)
+    order = np.argsort(-(x - f), axis=1, kind="stable")
+    rank = np.empty_like(order)
+    np.put_along_axis(rank, order, np.arange(D.shape[1])[None, :].repeat(len(D), axis=0), axis=1)
+    return f.astype(np.int64) + (rank < rest[:, None])
 
 
 def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
-    """Float sums of :func:`semantics.evidence.frame_semantic_delta` -> integer :class:`Delta`.
+    """Float sums of :func:`semantics.evidence.frame_semantic_delta` -> the integer :class:`Delta` of the
+    module docstring's table.
 
     keys : (n,) int64 sorted unique; channels : E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3)
-    float64, count (n,) int64
+    float64, count (n,) int64 (> 0)
     """
-    return Delta(keys, {"E": quantize(channels["E"], "fixed"), "S": quantize(channels["S"], "fixed"),
-                        "rgb_sum": quantize(channels["rgb_sum"], "int"),
-                        "normal_sum": quantize(channels["normal_sum"], "fixed"),
-                        "count": np.asarray(channels["count"], np.int64)})
+    S_f = np.asarray(channels["S"], np.float64).reshape(-1)
+    count = np.asarray(channels["count"], np.int64).reshape(-1, 1)
+    s = np.rint(S_f * S_STEPS).astype(np.int64)
+    has = s > 0
+    D = np.zeros(np.shape(channels["E"]), np.float64)
+    D[has] = np.asarray(channels["E"], np.float64)[has] / S_f[has, None]
+    d = distribution_steps(D)
+    k = np.maximum(count, 1)
+    normal = np.rint(np.asarray(channels["normal_sum"], np.float64) * NORMAL_STEPS / k).astype(np.int64)
+    rgb = np.rint(np.asarray(channels["rgb_sum"], np.float64) / k).astype(np.int64)
+    return Delta(keys, {"E": s[:, None] * d, "S": (D_STEPS * s)[:, None], "rgb_sum": count * rgb,
+                        "normal_sum": count * normal, "count": count}, dict(DELTA_FACTORS))
 
 
-def semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray, T_world_cam: np.ndarray,
+def semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: np.ndarray,
                    voxel_size: float, weights: EvidenceWeights, min_range: float, max_range: float,
                    rays: np.ndarray | None = None) -> Delta:
-    """One frame's quantised semantic delta from its depth, colours and segmenter logits (no I/O).
+    """One frame's quantised semantic delta from its depth, colours and semantic observation (no I/O).
 
     Depths outside ``[min_range, max_range]`` (metres) are ignored, as in the geometry contributor.
+    ``obs`` : :class:`~panovocc_cli.semantics.observation.SemanticObservation` at the semantic stride.
     """
     from ..semantics.evidence import frame_semantic_delta
 
     depth = np.where((depth >= min_range) & (depth <= max_range), depth, 0.0).astype(np.float32)
-    keys, ch = frame_semantic_delta(depth, rgb, logits, T_world_cam, voxel_size, weights, rays)
+    keys, ch = frame_semantic_delta(depth, rgb, obs, T_world_cam, voxel_size, weights, rays)
     return quantize_semantic_delta(keys, ch)
 
 
@@ -125,7 +170,7 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     ----------
     occupied_keys : (n,) int64 voxel keys (lattice.pack_keys)
     channels : dict of the occupied voxels' stored channels, rows aligned with ``occupied_keys``:
-        E (n, C), S (n, 1), normal_sum (n, 3) fixed point; rgb_sum (n, 3), count (n, 1) int64
+        E (n, C), S (n, 1), normal_sum (n, 3), rgb_sum (n, 3), count (n, 1) int64 (module docstring)
     g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
     params : SemanticParams (use_gsc, gsc)
 
@@ -135,14 +180,13 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     """
     from ..geometry.lattice import unpack_keys
     from ..semantics.gsc import consolidate, unaries
-    from .memory import FIXED_SCALE
-
     n = len(occupied_keys)
     if n == 0:
         return np.zeros(0, np.int64)
-    E = channels["E"] / FIXED_SCALE
-    S = channels["S"][:, 0] / FIXED_SCALE
-    p, normals, colors = unaries(E, S, channels["normal_sum"] / FIXED_SCALE, channels["rgb_sum"], channels["count"][:, 0])
+    E = channels["E"] / S_SCALE
+    S = channels["S"][:, 0] / S_SCALE
+    p, normals, colors = unaries(E, S, channels["normal_sum"] / NORMAL_STEPS, channels["rgb_sum"],
+                                 channels["count"][:, 0])
     return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
                        use_gsc=params.use_gsc, params=params.gsc)
 

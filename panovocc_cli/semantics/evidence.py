@@ -1,8 +1,9 @@
 """Per-frame semantic evidence (paper Eq. memory_semantic_delta), as pure numpy functions.
 
-Each valid pixel p of frame t is one semantic measurement with class probabilities
-``p_t(p) = softmax(logits)`` and weight ``eta = c * w_erp(phi) * w_range(r)`` (``c``: its maximum class
-probability). A voxel's per-frame delta sums, over the pixels whose surface point falls in it,
+Each valid pixel p of frame t at the semantic stride is one semantic measurement: its kept observation
+(:mod:`.observation`: the two most probable classes and their probabilities in 1/15 steps) gives a
+distribution over the vocabulary and a confidence ``c`` (its maximum class probability), and its weight is
+``eta = c * w_erp(phi) * w_range(r)``. A voxel's per-frame delta sums, over the pixels whose surface point falls in it,
 ``eta * p`` (channel ``E``) and ``eta`` (channel ``S``), plus the geometry statistics GSC needs:
 ``rgb_sum`` and ``normal_sum`` (plain, unweighted sums, so the mean colour/normal is ``sum / count``
 and does not depend on the segmenter) and ``count`` (pixels). Subtracting a frame's delta undoes it
@@ -72,25 +73,24 @@ def measurement_weights(probs: np.ndarray, phi, r, weights: EvidenceWeights = Ev
     return eta.astype(np.float32)
 
 
-def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray, T_world_cam: np.ndarray,
+def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: np.ndarray,
                          voxel_size: float, weights: EvidenceWeights = EvidenceWeights(),
                          rays: np.ndarray | None = None):
     """The whole per-frame semantic step for one ERP frame: back-project, weigh, accumulate (compiled).
 
-    The same maths as :func:`erp_normals`, :func:`softmax`, :func:`measurement_weights` and
-    :func:`semantic_frame_delta` chained, in two numba kernels: a per-pixel pass over rows in parallel
-    (point, normal, class probabilities, weight, voxel key) and an accumulation in pixel order through
-    a hash table (the same float64 summation order as ``np.bincount``). The float32 ``exp`` of the
-    softmax is the C library's, not numpy's SIMD one (they differ by 1 ulp on ~40 % of inputs), so
-    the float sums can differ from the numpy chain in the last bits; after quantisation
-    (2^-16) the two agree to within one unit (tests/semantics/test_semantics_evidence.py).
+    Per measurement pixel (rows and columns ``0, s, 2s, ...``, ``s = weights.stride``) of the frame's
+    :class:`~.observation.SemanticObservation`: its world point, its normal (:func:`erp_normals`'s
+    rule), its weight ``eta = float32(c w_erp w_range) * s^2`` with the observation's confidence ``c``, and
+    ``eta`` times its two classes' shares added to ``E``. Two numba kernels: a pass over fixed row chunks
+    in parallel finding each pixel's voxel, and per-chunk sums in pixel order merged in chunk order, so
+    the float sums never depend on the thread count (tests/semantics/test_semantics_evidence.py checks
+    them against the numpy reference in tests/semantics_reference.py).
 
     Parameters
     ----------
     depth : (H, W) float, metres, radial, 0 = invalid
     rgb : (H, W, 3) uint8
-    logits : (H, W, C) float, segmenter output over the vocabulary; or (ceil(H/s), ceil(W/s), C) at the
-        semantic stride ``s = weights.stride`` (the logits of pixels (s i, s j))
+    obs : SemanticObservation at the semantic stride: shape (ceil(H/s), ceil(W/s))
     T_world_cam : (4, 4) float64, camera-to-world pose
     voxel_size : float, metres
     weights : EvidenceWeights (``stride``: which pixels are measurements, and their weight stride^2)
@@ -98,10 +98,13 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
 
     Returns
     -------
-    keys, channels : as :func:`semantic_frame_delta`
+    keys : (n,) int64 sorted voxel keys (lattice.pack_keys) of the voxels with a measurement
+    channels : dict of float sums over each voxel's pixels: ``E`` (n, C) sum of eta * share, ``S`` (n,) sum
+        of eta, ``rgb_sum`` (n, 3), ``normal_sum`` (n, 3) (world frame), ``count`` (n,) int64 pixels
     """
     from ..geometry.erp import latitudes, ray_directions
     from ..geometry.lattice import KEY_RANGE
+    from .observation import measurement
 
     depth = np.asarray(depth)
     if depth.ndim != 2:
@@ -111,20 +114,19 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
     if s < 1:
         raise PanovoccError(f"semantic stride must be >= 1, got {s}")
     h, w = -(-H // s), -(-W // s)  # the measurement grid: rows and columns 0, s, 2s, ...
-    if np.shape(rgb)[:2] != (H, W) or np.ndim(logits) != 3 or np.shape(logits)[:2] not in ((H, W), (h, w)):
-        raise PanovoccError(f"depth {depth.shape}, rgb {np.shape(rgb)[:2]} and logits {np.shape(logits)[:2]} "
-                            f"must have the same size (logits may also be at the semantic stride {s}: {(h, w)})")
+    if np.shape(rgb)[:2] != (H, W) or tuple(obs.shape) != (h, w):
+        raise PanovoccError(f"depth {depth.shape} and rgb {np.shape(rgb)[:2]} must have the same size, and the "
+                            f"semantic observation {tuple(obs.shape)} the size at the semantic stride {s}: {(h, w)}")
     if voxel_size <= 0:
         raise PanovoccError(f"voxel size must be positive, got {voxel_size}")
     if rays is None:
         rays = ray_directions(W, H)
     if s > 1:
         depth, rgb, rays = depth[::s, ::s], np.asarray(rgb)[::s, ::s], np.asarray(rays)[::s, ::s]
-        if np.shape(logits)[:2] == (H, W):
-            logits = np.asarray(logits)[::s, ::s]
     depth = np.ascontiguousarray(depth, dtype=np.float64)
     rays = np.ascontiguousarray(rays, dtype=np.float64)
-    logits = np.ascontiguousarray(logits, dtype=np.float32)
+    conf, share = measurement(obs)
+    classes = np.ascontiguousarray(obs.classes, dtype=np.uint8)
     rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     T = np.asarray(T_world_cam, np.float64)
     R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
@@ -136,12 +138,12 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, logits: np.ndarray,
     if _chunk_voxels(depth, rays, werp, float(weights.range_scale), R, t, float(voxel_size), int(KEY_RANGE),
                      nch, lid, ckeys, nvox):
         raise PanovoccError(f"voxel index out of the lattice's range (|index| < {KEY_RANGE})")
-    E, S, rgb_sum, normal_sum, count, allkeys = _chunk_sums(depth, rays, logits, rgb, werp,
-                                                            float(weights.range_scale), R, 0.1, nch, lid, ckeys,
-                                                            nvox, float(s * s))
+    E, S, rgb_sum, normal_sum, count, allkeys = _chunk_sums(depth, rays, classes, share, conf, int(obs.n_classes),
+                                                            rgb, werp, float(weights.range_scale), R, 0.1, nch, lid,
+                                                            ckeys, nvox, float(s * s))
     order = np.argsort(allkeys, kind="stable")  # same key: chunks stay in chunk order
     uk, E, S, rgb_sum, normal_sum, count = _merge_chunks(allkeys, order, E, S, rgb_sum, normal_sum, count)
-    if (count == 0).any():  # voxels whose every pixel had eta = 0 (float32 underflow at absurd ranges)
+    if (count == 0).any():  # voxels whose every pixel had eta = 0 (confidence 0, or float32 underflow)
         keep = count > 0
         uk, E, S, rgb_sum, normal_sum, count = uk[keep], E[keep], S[keep], rgb_sum[keep], normal_sum[keep], count[keep]
     return uk, {"E": E, "S": S, "rgb_sum": rgb_sum, "normal_sum": normal_sum, "count": count}
@@ -157,19 +159,6 @@ def _slot(key, bits):
 
 
 N_CHUNKS = 32  # fixed row chunks of the per-frame sums: the bytes never depend on the thread count
-
-_LOG2E = np.float32(1.4426950408889634)
-_LN2_HI = np.float32(0.693359375)
-_LN2_LO = np.float32(-2.12194440e-4)
-_EXP_MIN = np.float32(-87.0)  # exp(-87) ~ 1.6e-38: smaller inputs give that (numpy: a denormal or 0)
-_HALF = np.float32(0.5)
-_ONE = np.float32(1.0)
-_P0 = np.float32(1.9875691500e-4)  # Cephes expf polynomial on [-ln2/2, ln2/2], max error ~1 ulp
-_P1 = np.float32(1.3981999507e-3)
-_P2 = np.float32(8.3334519073e-3)
-_P3 = np.float32(4.1665795894e-2)
-_P4 = np.float32(1.6666665459e-1)
-_P5 = np.float32(5.0000001201e-1)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -255,75 +244,6 @@ def _chunk_voxels(depth, rays, werp, range_scale, R, t, h, key_range, nch, lid, 
 
 
 @nb.njit(cache=True, inline="always")
-def _softmax_row(row, m, e, acc, s, pw, pwf, cmax):
-    """Softmax of one image row ``row`` (W, C) float32 into ``e`` (C, W), its maximum into ``cmax`` (W,):
-    after a transposing pass, loops along the row with no calls, so they vectorise. ``exp`` is the Cephes float32 polynomial
-    (within ~1 ulp of the C library's), the sum over classes numpy's pairwise order."""
-    W, C = row.shape
-    flat = row.ravel()
-    for k in range(C):  # transpose, class after class (strided loads of a whole row vectorise)
-        ek = e[k]
-        for u in range(W):
-            ek[u] = flat[u * C + k]
-    e0 = e[0]
-    for u in range(W):
-        m[u] = e0[u]
-    for k in range(1, C):
-        ek = e[k]
-        for u in range(W):
-            x = ek[u]
-            m[u] = x if x > m[u] else m[u]
-    for k in range(C):
-        ek = e[k]
-        for u in range(W):
-            x = ek[u] - m[u]
-            x = x if x > _EXP_MIN else _EXP_MIN
-            fn = np.floor(x * _LOG2E + _HALF)
-            r = x - fn * _LN2_HI - fn * _LN2_LO
-            p = ((((_P0 * r + _P1) * r + _P2) * r + _P3) * r + _P4) * r + _P5
-            ek[u] = p * r * r + r + _ONE
-            pw[u] = (np.int32(fn) + 127) << 23
-        for u in range(W):
-            ek[u] = ek[u] * pwf[u]
-    # numpy's pairwise float32 sum (n < 8: in order; else 8 accumulators, combined as a tree, then the tail)
-    if C < 8:
-        for u in range(W):
-            s[u] = e[0, u]
-        for k in range(1, C):
-            ek = e[k]
-            for u in range(W):
-                s[u] += ek[u]
-    else:
-        for j in range(8):
-            acc[j, :] = e[j, :]
-        k = 8
-        while k < C - (C % 8):
-            for j in range(8):
-                aj = acc[j]
-                ek = e[k + j]
-                for u in range(W):
-                    aj[u] += ek[u]
-            k += 8
-        a0, a1, a2, a3, a4, a5, a6, a7 = acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], acc[6], acc[7]
-        for u in range(W):
-            s[u] = ((a0[u] + a1[u]) + (a2[u] + a3[u])) + ((a4[u] + a5[u]) + (a6[u] + a7[u]))
-        while k < C:
-            ek = e[k]
-            for u in range(W):
-                s[u] += ek[u]
-            k += 1
-    for u in range(W):
-        cmax[u] = 0.0
-        s[u] = _ONE / s[u]  # times the reciprocal: within 1 ulp of the division
-    for k in range(C):
-        ek = e[k]
-        for u in range(W):
-            q = ek[u] * s[u]
-            ek[u] = q
-            cmax[u] = q if q > cmax[u] else cmax[u]
-
-
-@nb.njit(cache=True, inline="always")
 def _row_points(depth, rays, v, P, rr, ok):
     """Camera-frame points ``P`` (3, W + 2), ranges ``rr`` and validity ``ok`` (finite depth > 0) of image
     row ``v``; pixel u at column u + 1, columns 0 and W + 1 repeat the last and first (longitude wraps)."""
@@ -399,17 +319,18 @@ def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
 
 
 @nb.njit(cache=True, parallel=True)
-def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, lid, ckeys, nvox, area):
+def _chunk_sums(depth, rays, classes, share, conf, C, rgb, werp, range_scale, R, max_jump, nch, lid, ckeys, nvox,
+                area):
     """Pass 2, over the same row chunks in parallel: each chunk's per-voxel sums over its pixels in pixel
     order (float64): E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3) float64, count (n,) int64 and the
     keys (n,), chunk after chunk (``n = nvox.sum()``; a voxel seen by several chunks has a row in each).
 
-    Per pixel, the same expressions as the numpy chain: ``softmax`` (float32), ``eta = float32(c w_erp
+    Per pixel, the same expressions as the numpy reference: the observation's confidence ``conf`` and the
+    shares ``share`` of its classes ``classes`` (:func:`.observation.measurement`), ``eta = float32(conf w_erp
     w_range) * area`` (``area`` = stride^2, exactly 1 at stride 1), the ``erp_normals`` normal (float64,
-    cast to float32) rotated to the world frame.
+    cast to float32) rotated to the world frame. ``C``: the vocabulary size (E's width).
     """
     H, W = depth.shape
-    C = logits.shape[2]
     rows = (H + nch - 1) // nch
     off = np.zeros(nch + 1, np.int64)
     for c in range(nch):
@@ -427,13 +348,6 @@ def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, l
         o = off[c]
         for i in range(nvox[c]):
             keys[o + i] = ckeys[v0 * W + i]
-        m = np.empty(W, np.float32)
-        e = np.empty((C, W), np.float32)
-        acc = np.empty((8, W), np.float32)
-        s = np.empty(W, np.float32)
-        pw = np.empty(W, np.int32)
-        pwf = pw.view(np.float32)
-        cmax = np.empty(W, np.float32)
         pts = np.zeros((3, 3, W + 2), np.float64)  # rows v - 1, v, v + 1 (slot row % 3): points, padded
         rng = np.zeros((3, W + 2), np.float64)  # ... their ranges
         okr = np.zeros((3, W + 2), np.bool_)  # ... finite depth > 0
@@ -446,19 +360,18 @@ def _chunk_sums(depth, rays, logits, rgb, werp, range_scale, R, max_jump, nch, l
             if v + 1 < H:
                 _row_points(depth, rays, v + 1, pts[(v + 1) % 3], rng[(v + 1) % 3], okr[(v + 1) % 3])
             _row_normals(pts, rng, okr, v, H, max_jump, R, nw)
-            _softmax_row(logits[v], m, e, acc, s, pw, pwf, cmax)
             for u in range(W):
                 q = lid[v * W + u]
                 if q < 0:
                     continue
                 d = depth[v, u]
                 wr = 1.0 / (1.0 + (d / range_scale) ** 2)
-                et = np.float64(np.float32(np.float64(cmax[u]) * werp[v] * wr)) * area
+                et = np.float64(np.float32(np.float64(conf[v, u]) * werp[v] * wr)) * area
                 if not et > 0:
                     continue
                 i = o + q
-                for k in range(C):
-                    E[i, k] += et * np.float64(e[k, u])
+                E[i, classes[v, u, 0]] += et * np.float64(share[v, u, 0])
+                E[i, classes[v, u, 1]] += et * np.float64(share[v, u, 1])
                 S[i] += et
                 for k in range(3):
                     col[i, k] += np.float64(rgb[v, u, k])

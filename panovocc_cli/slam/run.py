@@ -40,6 +40,7 @@ class SlamPoses:
         self.tracker: Tracker | None = None
         self.steps: list = []
         self.revisions = 0  # frame revisions sent to the map
+        self.on_loops = None  # optional callable (frame id, [(keyframe id, keyframe id)]): loop edges found
 
     def __call__(self, seq_or_index, frame=None):
         if frame is None:  # bind to a sequence
@@ -48,17 +49,21 @@ class SlamPoses:
         step = self.tracker.track(int(seq_or_index), frame.depth)
         self.steps.append((step.frame_id, step.status, step.fitness, step.reason))
         self.revisions += len(step.revisions)
+        if step.loops and self.on_loops is not None:
+            self.on_loops(step.frame_id, step.loops)
         return step.T_world_cam, step.revisions
 
 
 def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
-                 params: SlamParams | None = None) -> dict:
+                 params: SlamParams | None = None, observer=None) -> dict:
     """Map ``cfg.seq`` with poses estimated online (``cfg.poses`` is set to ``"slam"``).
 
     Returns
     -------
     summary : run_map's summary plus ``slam`` (keyframes, loop closures, optimisations, lost,
         relocalised and unplaced frames) and ``track_ms_per_frame``
+
+    observer : as for ``run_map``; its ``loops(frame id, edges)``, when it has one, hears of each loop closure
     """
     from ..io.atomic import write_text
     from ..io.poses import write_tum
@@ -66,7 +71,8 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
     source = SlamPoses(params)
-    summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source)
+    source.on_loops = getattr(observer, "loops", None)
+    summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)
     out = Path(summary["out"])
     tr = source.tracker
     committed = tr.committed()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-HEAVY = ("numba", "open3d", "cv2", "matplotlib", "pyrender", "scipy", "torch")
+HEAVY = ("numba", "open3d", "cv2", "matplotlib", "pyrender", "scipy", "torch", "rerun", "rosbags")
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -31,7 +31,9 @@ def _imported_modules(*args: str) -> set[str]:
 
 @pytest.mark.parametrize("args", [("--help",), ("map", "--help"), ("gt", "--help"), ("render", "--help"),
                                   ("segeval", "--help"), ("revise", "--help"),
-                                  ("views", "--help"), ("convert", "holo360d", "--help")])
+                                  ("views", "--help"), ("convert", "holo360d", "--help"), ("view", "--help"),
+                                  ("convert", "rosbag", "--help"), ("convert", "s2d3ds", "--help"),
+                                  ("convert", "s2d3ds-gt", "--help")])
 def test_help_imports_no_heavy_library(args):
     heavy = sorted(set(HEAVY) & _imported_modules(*args))
     assert not heavy, f"panovocc {' '.join(args)} imports {heavy}"

@@ -178,3 +178,51 @@ def test_memory_file_round_trip_sparse_channels(tmp_path):
         assert np.array_equal(back[k], v), k
         if k.startswith("ch_") or k == "keys":
             assert back[k].dtype == np.int64
+
+
+def test_delta_record_factored_channels_and_observation_round_trip():
+    """A record stores a channel that factors (``channel = factor * m / denominator``) as m, a wide mostly-zero
+    channel as its non-zero entries, key gaps in int16 with the large ones apart: all read back exactly; a
+    factor hint that does not hold leaves the channel as it is."""
+    from panovocc_cli.io.mapstore import decode_record, encode_delta
+    from panovocc_cli.semantics.observation import observe
+
+    rng = np.random.default_rng(0)
+    n = 300
+    keys = np.sort(rng.choice(2 ** 40, n, replace=False)).astype(np.int64)
+    keys[:100] = np.arange(100) + keys[0]  # runs of small gaps, then large ones
+    keys = np.unique(keys)
+    n = len(keys)
+    s = rng.integers(0, 500, (n, 1))
+    d = np.zeros((n, 12), np.int64)
+    d[np.arange(n), rng.integers(0, 12, n)] = 64
+    count = rng.integers(1, 9, (n, 1))
+    ch = {"E": s * d, "S": 64 * s, "count": count, "rgb_sum": count * rng.integers(0, 256, (n, 3)),
+          "bad": count * 3 + 1}
+    factors = {"E": ("S", 64), "rgb_sum": ("count", 1), "bad": ("count", 1)}
+    obs = observe(rng.normal(size=(6, 12, 12)).astype(np.float32))
+    payload = encode_delta([(keys, ch, factors)], 2 * np.eye(4), obs.to_arrays())
+    rec = decode_record(payload)
+    (k2, ch2), = rec.parts
+    np.testing.assert_array_equal(k2, keys)
+    for name in ch:
+        np.testing.assert_array_equal(ch2[name], ch[name], err_msg=name)
+    np.testing.assert_array_equal(rec.T_world_cam, 2 * np.eye(4))
+    from panovocc_cli.semantics.observation import SemanticObservation
+
+    back = SemanticObservation.from_arrays(rec.observation)
+    np.testing.assert_array_equal(back.classes, obs.classes)
+    np.testing.assert_array_equal(back.q, obs.q)
+    import zlib
+
+    from panovocc_cli.io.mapstore import decode_arrays
+    stored = decode_arrays(payload)
+    assert "fac_E" in stored and "fac_rgb_sum" in stored and "fac_bad" not in stored  # the hint that fails
+    assert stored["keys_diff"].dtype == np.int16
+    plain = encode_delta([(keys, ch)], 2 * np.eye(4))
+    assert len(zlib.decompress(encode_delta([(keys, ch, factors)], 2 * np.eye(4)))) < len(zlib.decompress(plain))
+    # no factors and no observation: as before
+    rec = decode_record(plain)
+    assert rec.observation is None
+    for name in ch:
+        np.testing.assert_array_equal(rec.parts[0][1][name], ch[name])

@@ -321,3 +321,65 @@ def test_semantic_stride_run_api_and_revise_exact(seq_dir, tmp_path):
     for i in range(N):
         ref.integrate(dataclasses.replace(frames(i), T_world_cam=T) if i == 3 else frames(i))
     _assert_same_memory(api, ref)
+
+
+def test_revision_never_calls_the_segmenter(seq_dir, tmp_path):
+    """A revision takes the frame's semantics from the observation kept with its delta: the frame source
+    gives depth and colours only (its logits, if any, are ignored), the segmenter is never called, and the
+    map equals one built with the final pose from the start — in RAM, in a folder, and after a reload."""
+    out = tmp_path / "m"
+    run_map(MapConfig(seq=str(seq_dir), out=str(out), checkpoint_every=0), progress=False)
+    cfg = load_config(out)
+    frames = sequence_frames(cfg, Sequence(seq_dir))
+    calls = []
+    real = frames.segmenter.logits
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    frames.segmenter.logits = counting
+    T = _moved(frames(2).T_world_cam, 5)
+    ref = Mapper(cfg.mapper_config())
+    for i in range(N):
+        ref.integrate(dataclasses.replace(frames(i), T_world_cam=T) if i == 2 else frames(i))
+    calls.clear()
+
+    def wrong_logits(i):  # a source whose logits are garbage: they must not be used
+        f = frames.read(i)
+        return dataclasses.replace(f, logits=np.zeros((W // 2, W, 12), np.float32))
+
+    m = Mapper.load(out, frame_source=wrong_logits)
+    m.revise(2, T)
+    _assert_same_memory(m, ref)
+    m.save()
+    m.close()
+    _assert_same_memory(Mapper.load(out), ref)
+    assert calls == []
+    # in RAM with kept frames: the logits are dropped once the observation is made
+    r = Mapper(cfg.mapper_config())
+    for i in range(N):
+        r.integrate(frames(i))
+    assert all(f.logits is None for f in r._frames.values())
+    calls.clear()
+    r.revise(2, T)
+    assert calls == []
+    _assert_same_memory(r, ref)
+    # the command: revise reads the sequence without building a segmenter
+    write_poses(tmp_path / "p.txt", np.stack([T if i == 2 else frames.read(i).T_world_cam for i in range(N)]))
+    run_revise(str(out), str(tmp_path / "p.txt"), progress=False)
+    _assert_same_memory(Mapper.load(out), ref)
+
+
+def test_a_semantic_map_of_an_older_format_is_refused_in_one_line(mapped, tmp_path):
+    import json
+    import shutil
+
+    out, _, _ = mapped
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    d = json.loads((old / "config.json").read_text())
+    d["format_version"] = 3
+    (old / "config.json").write_text(json.dumps(d))
+    with pytest.raises(PanovoccError, match="format 3.*map the sequence again"):
+        Mapper.load(old)

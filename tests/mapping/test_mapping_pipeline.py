@@ -358,3 +358,33 @@ def test_memory_and_store_agree_after_a_failed_write(room_seq, tmp_path, monkeyp
     a, b = back.memory.to_arrays(), ref.memory.to_arrays()
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_frame_times_csv_and_the_scale_benchmarks_figures(room_seq, tmp_path):
+    """`map --frame-times` writes one row a frame (time since the first frame, update ms, checkpoint flag,
+    resident MB) and refuses to replace a file without --overwrite; the scale benchmark's early/late medians,
+    checkpoint cost and moved tail come from it."""
+    import csv
+
+    from panovocc_cli.benchmark.scale import frame_costs, moved_tail
+
+    times = tmp_path / "t.csv"
+    s = run_map(_cfg(room_seq, tmp_path / "m", frame_times=str(times)), progress=False)
+    rows = list(csv.DictReader(open(times)))
+    assert [int(r["frame"]) for r in rows] == list(range(s["frames"]))
+    t = [float(r["t_s"]) for r in rows]
+    assert all(b >= a for a, b in zip(t, t[1:])) and all(float(r["rss_mb"]) > 10 for r in rows)
+    assert [int(r["checkpoint"]) for r in rows] == [int((i + 1) % 2 == 0 and i + 1 < len(rows)) for i in range(len(rows))]
+    fc = frame_costs(times)
+    assert fc["frames"] == len(rows) and fc["ms_early"] > 0 and fc["ms_late"] > 0 and fc["checkpoints"] >= 1
+    with pytest.raises(PanovoccError, match="already exists"):
+        run_map(_cfg(room_seq, tmp_path / "m2", frame_times=str(times)), progress=False)
+    assert not (tmp_path / "m2").exists()
+    P = np.tile(np.eye(4), (10, 1, 1))
+    P[:, 0, 3] = np.arange(10)
+    Q = moved_tail(P, 4)
+    np.testing.assert_array_equal(Q[:6], P[:6])
+    assert not np.allclose(Q[6:], P[6:])
+    for T in Q:
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(Q[6, :3, 3] - P[6, :3, 3]), 0.01, atol=1e-9)  # the pivot: 1 cm

@@ -81,10 +81,14 @@ def test_noisy_wall_ends_up_wall(default_map):
 
 
 def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
-    """E and S in the memory = the float sums of the per-frame evidence, to the fixed-point resolution."""
-    from panovocc_cli.io.sequence import Sequence
-    from panovocc_cli.semantics.evidence import frame_semantic_delta
+    """The memory's semantic channels = the exact integer sums of the per-frame deltas, each made from the
+    frame's observation of the segmenter's logits (mapping/semantic.py), and E / S the fused distribution."""
     from panovocc_cli.classes import parse_vocab
+    from panovocc_cli.io.mapstore import read_map_config
+    from panovocc_cli.io.sequence import Sequence
+    from panovocc_cli.mapping.semantic import S_SCALE, quantize_semantic_delta
+    from panovocc_cli.semantics.evidence import frame_semantic_delta
+    from panovocc_cli.semantics.observation import observe
     from panovocc_cli.semantics.registry import build_segmenter
     from panovocc_cli.semantics.simulated import sequence_label_source
 
@@ -92,26 +96,28 @@ def test_memory_holds_exact_sums_of_frame_evidence(sem_seq, default_map):
     mem, _, _ = load_memory(out)
     seq = Sequence(sem_seq)
     seg, vocab = build_segmenter("simulated", label_source=sequence_label_source(seq)), parse_vocab()
-    acc = {}
-    from panovocc_cli.io.mapstore import read_map_config
-
+    acc, floats = {}, {}
     origin = np.asarray(read_map_config(out)["origin"])  # the memory keys voxels relative to the map's origin
     for i in range(N):
-        logits = seg.logits(seq.rgb(i), vocab, frame_id=i)
+        obs = observe(seg.logits(seq.rgb(i), vocab, frame_id=i))
         T = seq.poses[i].copy()
         T[:3, 3] -= origin
-        keys, ch = frame_semantic_delta(seq.depth(i), seq.rgb(i), logits, T, 0.08)
-        for k, e, s in zip(keys, ch["E"], ch["S"]):
-            a = acc.setdefault(int(k), [np.zeros(len(vocab)), 0.0])
-            a[0] += e
-            a[1] += s
+        keys, ch = frame_semantic_delta(seq.depth(i), seq.rgb(i), obs, T, 0.08)
+        d = quantize_semantic_delta(keys, ch)
+        for r, k in enumerate(keys):
+            a = acc.setdefault(int(k), {name: 0 for name in d.channels})
+            for name in d.channels:
+                a[name] = a[name] + d.channels[name][r]
+            f = floats.setdefault(int(k), [0.0, 0.0])
+            f[0] += ch["S"][r]
     keys = np.array(sorted(acc), np.int64)
     got = mem.gather(keys)
-    E = np.stack([acc[int(k)][0] for k in keys])
-    S = np.array([acc[int(k)][1] for k in keys])
-    tol = N * 0.5 / FIXED_SCALE + 1e-9
-    assert np.abs(got["E"] / FIXED_SCALE - E).max() <= tol
-    assert np.abs(got["S"][:, 0] / FIXED_SCALE - S).max() <= tol
+    for name in ("E", "S", "rgb_sum", "normal_sum", "count"):
+        np.testing.assert_array_equal(got[name], np.stack([np.atleast_1d(acc[int(k)][name]) for k in keys]),
+                                      err_msg=name)
+    S = np.array([floats[int(k)][0] for k in keys])
+    assert np.abs(got["S"][:, 0] / S_SCALE - S).max() <= N * 0.5 / 256 + 1e-9  # the weight to half a step a frame
+    np.testing.assert_array_equal(got["E"].sum(1), got["S"][:, 0])
     assert np.all(got["count"][:, 0] > 0)
 
 

@@ -9,6 +9,7 @@ from panovocc_cli.geometry.erp import ray_directions
 from panovocc_cli.geometry.lattice import pack_keys, point_to_index, unpack_keys
 from panovocc_cli.semantics.evidence import (EvidenceWeights, frame_semantic_delta, measurement_weights, softmax,
                                              w_erp, w_range)
+from panovocc_cli.semantics.observation import observe
 from panovocc_cli.semantics.simulated import SimulatedConfig, simulate_logits
 
 from semantics_helpers import CLASS_NAMES, pose, render_room
@@ -126,8 +127,8 @@ def test_wall_seen_by_many_noisy_frames_ends_up_wall():
         lab, depth, rgb = render_room(width, T)
         exact = simulate_logits(lab, CLASS_NAMES, VOCAB, i, SimulatedConfig(noise=0))
         noise = simulate_logits(lab, CLASS_NAMES, VOCAB, i, SimulatedConfig(seed=11))
-        truth.append(frame_semantic_delta(depth, rgb, exact, T, h))
-        noisy.append(frame_semantic_delta(depth, rgb, noise, T, h))
+        truth.append(frame_semantic_delta(depth, rgb, observe(exact), T, h))
+        noisy.append(frame_semantic_delta(depth, rgb, observe(noise), T, h))
     kt, Et, St = accumulate(truth)
     kn, En, Sn = accumulate(noisy)
     assert np.array_equal(kt, kn)
@@ -160,8 +161,8 @@ def test_wall_seen_by_many_noisy_frames_ends_up_wall():
 def test_subtracting_a_delta_undoes_it():
     lab, depth, rgb = render_room(64)
     T = pose()
-    d1 = frame_semantic_delta(depth, rgb, simulate_logits(lab, CLASS_NAMES, VOCAB, 0), T, 0.2)
-    d2 = frame_semantic_delta(depth, rgb, simulate_logits(lab, CLASS_NAMES, VOCAB, 1), T, 0.2)
+    d1 = frame_semantic_delta(depth, rgb, observe(simulate_logits(lab, CLASS_NAMES, VOCAB, 0)), T, 0.2)
+    d2 = frame_semantic_delta(depth, rgb, observe(simulate_logits(lab, CLASS_NAMES, VOCAB, 1)), T, 0.2)
     k, E, S = accumulate([d1, d2])
     pos = np.searchsorted(k, d2[0])
     E[pos] -= d2[1]["E"]
@@ -178,16 +179,14 @@ def test_subtracting_a_delta_undoes_it():
 def test_compiled_delta_matches_numpy_reference(width, yaw, voxel, stride, strided_logits):
     """The compiled per-frame delta = the plain-numpy chain (tests/semantics_reference.py).
 
-    Keys, counts and colour sums are identical; the float sums agree to ~1e-6 relative. The differences:
-    the float32 exp of the softmax (a Cephes polynomial vs numpy's SIMD one, ~1 ulp apart), the
-    normalisation by a reciprocal (1 ulp), and the summation order of a voxel whose pixels fall in
-    several of the fixed row chunks (chunk partial sums added in chunk order). After quantisation
-    (2^-16) E, S and the normal sums agree to within one unit (the normal sums are identical on these
-    frames). Width 40 (20 rows) has fewer rows than chunks. With a semantic stride s the measurements are
-    pixels (s i, s j) weighing s^2, from full-size logits or logits given at the stride (width 250 with
-    s = 3: 84 x 42 measurements, the last row and column partial).
+    Keys, counts and colour sums are identical; the float sums agree to ~1e-6 relative (the summation order
+    of a voxel whose pixels fall in several of the fixed row chunks: chunk partial sums added in chunk
+    order). After quantisation the weight steps s = S / 64 agree to within one step, the normal sums
+    exactly. Width 40 (20 rows) has fewer rows than chunks. With a semantic stride s the measurements are
+    pixels (s i, s j) weighing s^2, observed from full-size logits taken at the stride or from logits
+    made at the stride (width 250 with s = 3: 84 x 42 measurements, the last row and column partial).
     """
-    from panovocc_cli.mapping.semantic import quantize_semantic_delta
+    from panovocc_cli.mapping.semantic import D_STEPS, quantize_semantic_delta
 
     T = pose(yaw=yaw)
     lab, depth, rgb = render_room(width, T)
@@ -196,20 +195,23 @@ def test_compiled_delta_matches_numpy_reference(width, yaw, voxel, stride, strid
     depth[3, :] = np.nan
     logits = simulate_logits(lab, CLASS_NAMES, VOCAB + ["pillow"], 4, SimulatedConfig(seed=3))
     if strided_logits:
-        logits = logits[::stride, ::stride]
+        lab_s = lab[::stride, ::stride]
+        logits = simulate_logits(lab_s, CLASS_NAMES, VOCAB + ["pillow"], 4, SimulatedConfig(seed=3))
+    obs = observe(logits if strided_logits else logits[::stride, ::stride])
     w = EvidenceWeights(stride=stride)
-    k1, c1 = frame_semantic_delta(depth, rgb, logits, T, voxel, w)
-    k0, c0 = frame_semantic_delta_numpy(np.nan_to_num(depth, nan=0.0), rgb, logits, T, voxel, w)
+    k1, c1 = frame_semantic_delta(depth, rgb, obs, T, voxel, w)
+    k0, c0 = frame_semantic_delta_numpy(np.nan_to_num(depth, nan=0.0), rgb, obs, T, voxel, w)
     if stride > 1:  # the measurements are the strided pixels only
         assert c1["count"].sum() == np.count_nonzero(np.nan_to_num(depth, nan=0.0)[::stride, ::stride] > 0)
     assert np.array_equal(k0, k1)
     for name in ("rgb_sum", "count"):
         assert np.array_equal(c0[name], c1[name])
     np.testing.assert_allclose(c1["E"], c0["E"], rtol=2e-6, atol=1e-9)
+    np.testing.assert_allclose(c1["normal_sum"], c0["normal_sum"], rtol=1e-12, atol=1e-12)
     q0, q1 = quantize_semantic_delta(k0, c0), quantize_semantic_delta(k1, c1)
-    for name in ("E", "S", "normal_sum"):
-        assert np.abs(q0.channels[name] - q1.channels[name]).max() <= 1
-    assert np.array_equal(q0.channels["normal_sum"], q1.channels["normal_sum"])
+    assert np.abs(q0.channels["S"] - q1.channels["S"]).max() <= D_STEPS
+    for name in ("normal_sum", "rgb_sum", "count"):
+        assert np.array_equal(q0.channels[name], q1.channels[name])
 
 
 _THREADS_SCRIPT = """
@@ -219,14 +221,18 @@ sys.path.insert(0, {tests!r})
 from semantics_helpers import CLASS_NAMES, pose, render_room
 from panovocc_cli.classes import DEFAULT_VOCAB
 from panovocc_cli.semantics.evidence import frame_semantic_delta
+from panovocc_cli.semantics.observation import observe
 from panovocc_cli.semantics.simulated import SimulatedConfig, simulate_logits
 T = pose(yaw=0.7)
 lab, depth, rgb = render_room(512, T)
 depth = depth.astype(np.float32)
 depth[::11, ::3] = 0.0
 logits = simulate_logits(lab, CLASS_NAMES, list(DEFAULT_VOCAB) + ["pillow"], 2, SimulatedConfig(seed=4))
-k, c = frame_semantic_delta(depth, rgb, logits, T, 0.08)
+obs = observe(logits)
+k, c = frame_semantic_delta(depth, rgb, obs, T, 0.08)
 h = hashlib.sha256(logits.tobytes())
+h.update(obs.classes.tobytes())
+h.update(obs.q.tobytes())
 h.update(k.tobytes())
 for name in sorted(c):
     h.update(np.ascontiguousarray(c[name]).tobytes())
@@ -236,7 +242,7 @@ print(h.hexdigest(), len(k))
 
 def test_delta_and_simulator_bytes_do_not_depend_on_the_thread_count():
     """The compiled kernels split the image into a fixed number of row chunks and merge them in chunk
-    order, so 1 and 2 numba threads give the same bytes (logits, keys and every float sum)."""
+    order, so 1 and 2 numba threads give the same bytes (logits, observation, keys and every float sum)."""
     import os
     import subprocess
     import sys
