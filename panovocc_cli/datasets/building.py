@@ -26,7 +26,7 @@ apart along the whole walk unless ``frames`` is given, with the house's camera m
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 import numpy as np
@@ -35,7 +35,9 @@ from ..classes import canonical_name
 from ..config import DEFAULT_SEED
 from ..errors import PanovoccError
 from .layout import REQUIRED, WALL_T, LayoutRetry, Opening, Room, overlap, place_scene
+from .furniture import paints
 from .house import CorridorHouse, visit_room
+from .meshbuild import Paint
 from .rooms import leaf_box
 from .trajectory import orient, path_length, plan_path, resample
 
@@ -73,7 +75,8 @@ class Plan:
     ``hc`` ceiling height, ``slab`` floor slab thickness, ``storey`` = hc + slab; stair: ``risers`` a storey
     (even), ``rise`` and ``tread`` a step, ``flight_w``; ``length`` the corridor's, ``corridor`` (y0, y1),
     ``shaft`` (x0, x1, y0, y1) the stair shaft (south row, west end), ``south`` / ``north`` the rooms'
-    (x0, x1) in each row, ``depth`` the rows' (south, north) depths.
+    (x0, x1) in each row, ``depth`` the rows' (south, north) depths, ``paints`` the shaft's (walls, steps,
+    balustrades: one stairwell through all floors, whose rooms each have their own).
     """
 
     hc: float
@@ -89,6 +92,7 @@ class Plan:
     south: tuple[tuple[float, float], ...]
     north: tuple[tuple[float, float], ...]
     depth: tuple[float, float]
+    paints: dict = field(default_factory=dict, compare=False)  # the stair shaft's, the same on every floor
 
     @property
     def steps(self) -> int:
@@ -135,6 +139,7 @@ def draw_plan(seed: int, floors: int, rooms: int | None) -> Plan:
     cw = float(rng.uniform(1.5, 1.8))
     ds, dn = (float(x) for x in rng.uniform(3.8, 4.6, 2))
     pool_s, pool_n = rng.uniform(3.4, 4.6, FLOOR_ROOMS[1]), rng.uniform(3.4, 4.6, FLOOR_ROOMS[1])
+    shaft_paints = paints(rng)
     n, rise, tread, slab = _stair_dims(hc)
     fw = (ds - WELL) / 2
     shaft_w = LANDING + (n // 2 - 1) * tread + max(1.5, fw)
@@ -160,7 +165,7 @@ def draw_plan(seed: int, floors: int, rooms: int | None) -> Plan:
             x += float(w) + WALL_T
         return Plan(hc=hc, slab=slab, storey=hc + slab, risers=n, rise=rise, tread=tread, flight_w=fw,
                     length=float(L), corridor=(yc0, yc1), shaft=(0.0, shaft_w, 0.0, ds), south=tuple(south),
-                    north=tuple(north), depth=(ds, dn))
+                    north=tuple(north), depth=(ds, dn), paints=shaft_paints)
 
     if rooms is not None:
         return plan(rooms)
@@ -265,27 +270,27 @@ class _Floor(CorridorHouse):
         self._floor(room if self.level == 0 else landing)
         self._ceiling(room if self.top else landing, lights=1)
         for side in "SNWE":
-            self._wall(room, side, top=None if self.top else p.storey)
+            self._wall(room, side, top=None if self.top else p.storey, paint=p.paints["wall"])
         stair = mb.new_object("stair", tint=0.03)
         rail = mb.new_object("handrail", tint=0.03)
         y0, y1 = room.y0, room.y1
         fw = p.flight_w
         if self.level > 0:  # the landing's slab edge over the well (on top also over the first flight's void)
             edge = (y0, y1 - fw) if self.top else (y0 + fw, y1 - fw)
-            self._vquad(stair, "white", xa, edge, -p.slab, 0.0, +1)
+            self._vquad(stair, p.paints["white"], xa, edge, -p.slab, 0.0, +1)
             self._rail_x(rail, xa - RAIL_T / 2, edge, 0.0)  # and its balustrade
         if not self.top:
             self._flights(stair, rail, room)
 
-    def _vquad(self, obj: int, paint: str, x: float, ys: tuple[float, float], z0: float, z1: float,
+    def _vquad(self, obj: int, paint: Paint, x: float, ys: tuple[float, float], z0: float, z1: float,
                facing: int) -> None:
         """A vertical rectangle in the plane x = ``x``, facing +x (``facing`` = 1) or -x."""
         q = np.array([[x, ys[0], z0], [x, ys[1], z0], [x, ys[1], z1], [x, ys[0], z1]])  # counter-clockwise from +x
-        self.mb.quads(obj, self.pt[paint], q if facing > 0 else q[::-1])
+        self.mb.quads(obj, paint, q if facing > 0 else q[::-1])
 
     def _rail_x(self, obj: int, x: float, ys: tuple[float, float], z: float) -> None:
         """A balustrade panel across the shaft (centred on the plane x = ``x``) standing on height ``z``."""
-        self.mb.box(obj, self.pt["metal"], (x, (ys[0] + ys[1]) / 2, z + RAIL_H / 2), (RAIL_T, ys[1] - ys[0], RAIL_H),
+        self.mb.box(obj, self.plan.paints["metal"], (x, (ys[0] + ys[1]) / 2, z + RAIL_H / 2), (RAIL_T, ys[1] - ys[0], RAIL_H),
                     omit=("-z",), cell=0.5)
 
     def _rail_sloped(self, obj: int, y: float, xs: tuple[float, float], zs: tuple[float, float]) -> None:
@@ -301,23 +306,24 @@ class _Floor(CorridorHouse):
                (xs[0], y + h, zs[0] + RAIL_H)]
         n = np.cross(np.subtract(top[1], top[0]), np.subtract(top[3], top[0]))
         quads.append(top if n[2] > 0 else top[::-1])
-        self.mb.quads(obj, self.pt["metal"], np.array(quads, dtype=np.float64))
+        self.mb.quads(obj, self.plan.paints["metal"], np.array(quads, dtype=np.float64))
 
     def _flights(self, stair: int, rail: int, room: Room) -> None:
         """Both flights of this storey and the half landing between them (floor-local z: 0 here, the
         next floor at ``storey``)."""
-        p, mb, pt = self.plan, self.mb, self.pt
+        p, mb = self.plan, self.mb
+        pt = p.paints
         m, r, g, t = p.steps, p.rise, p.tread, p.slab
         H = p.storey
         xa, xh = p.landing_edge, p.half_landing
         y0, y1, fw = room.y0, room.y1, p.flight_w
         run = (m - 1) * g
         # the half landing: top, underside, its edge over the well (the flights close it in their lanes)
-        mb.grid(stair, pt["floor"], (xh, y0, H / 2), (1, 0, 0), (0, 1, 0), [0, room.x1 - xh], [0, y1 - y0],
+        mb.grid(stair, pt["wood"], (xh, y0, H / 2), (1, 0, 0), (0, 1, 0), [0, room.x1 - xh], [0, y1 - y0],
                 (0, 0, 1))
         mb.grid(stair, pt["white"], (xh, y0, H / 2 - t), (1, 0, 0), (0, 1, 0), [0, room.x1 - xh], [0, y1 - y0],
                 (0, 0, -1))
-        self._vquad(stair, "white", xh, (y0 + fw, y1 - fw), H / 2 - t, H / 2, -1)
+        self._vquad(stair, pt["white"], xh, (y0 + fw, y1 - fw), H / 2 - t, H / 2, -1)
         ground = 0.0 if self.level == 0 else -np.inf
         for flight in (0, 1):
             # walking direction +x (first flight, south lane) or -x (second, north lane); u = distance walked

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import furniture as fu
 from .layout import NORMAL, OPPOSITE, WALL_T, LayoutRetry, Opening, Room, overlap, tf_yaw
-from .meshbuild import MeshBuilder, Transform2D
+from .meshbuild import MeshBuilder, Paint, Transform2D
 
 
 class Home:
@@ -333,10 +333,12 @@ class Home:
         # One quad per plank piece; pieces of one plank get different jitter, which reads as wear.
         mb.quads(fl, self.pt["floor"], np.array(quads, dtype=np.float64))
 
-    def _wall(self, room: Room, side: str, top: float | None = None) -> None:
+    def _wall(self, room: Room, side: str, top: float | None = None, paint: Paint | None = None) -> None:
         """The wall on ``side`` of ``room`` from the floor to ``top`` metres (None: the ceiling, ``hc``), 0.4 m
-        cells, holes for its openings, and the openings' reveals, panes, curtains and leaves."""
+        cells, holes for its openings, and the openings' reveals, panes, curtains and leaves; ``paint`` for the
+        wall and its reveals (None: the home's wall paint)."""
         mb, pt = self.mb, self.pt
+        paint = pt["wall"] if paint is None else paint
         hc = self.hc if top is None else top
         wo = mb.new_object("wall", tint=0.015)
         lo, hi = room.side_range(side)
@@ -354,11 +356,11 @@ class Home:
             return out
 
         origin = room.P(side, lo, 0.0, 0.0)
-        mb.grid(wo, pt["wall"], origin, U, (0, 0, 1), su - lo, sv, n3, skip=skip)
+        mb.grid(wo, paint, origin, U, (0, 0, 1), su - lo, sv, n3, skip=skip)
         for o in ops:
-            self._opening(room, o, wo, U, n3)
+            self._opening(room, o, wo, U, n3, paint)
 
-    def _opening(self, room: Room, o: Opening, wo: int, U: np.ndarray, n3: np.ndarray) -> None:
+    def _opening(self, room: Room, o: Opening, wo: int, U: np.ndarray, n3: np.ndarray, paint: Paint) -> None:
         mb, pt = self.mb, self.pt
         out = -n3  # outward
         if o.kind == "window":
@@ -370,9 +372,9 @@ class Home:
         w, h = o.s1 - o.s0, o.z1 - o.z0
         if depth > 0:
             z = np.array([0, 0, 1.0])
-            mb.rect(wo, pt["wall"], room.P(o.side, o.s0, 0, o.z0), out, z, depth, h, U, cell=0.4)
-            mb.rect(wo, pt["wall"], room.P(o.side, o.s1, 0, o.z0), out, z, depth, h, -U, cell=0.4)
-            mb.rect(wo, pt["wall"], room.P(o.side, o.s0, 0, o.z1), U, out, w, depth, -z, cell=0.4)
+            mb.rect(wo, paint, room.P(o.side, o.s0, 0, o.z0), out, z, depth, h, U, cell=0.4)
+            mb.rect(wo, paint, room.P(o.side, o.s1, 0, o.z0), out, z, depth, h, -U, cell=0.4)
+            mb.rect(wo, paint, room.P(o.side, o.s0, 0, o.z1), U, out, w, depth, -z, cell=0.4)
             if o.kind == "window":
                 mb.rect(wo, pt["white"], room.P(o.side, o.s0, 0, o.z0), U, out, w, depth, z, cell=0.4)
             else:
