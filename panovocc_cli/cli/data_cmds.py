@@ -17,12 +17,16 @@ from .options import OptionValues, build_config, config_command
 
 @config_command(app, SynthConfig, "synth")
 def synth(o: OptionValues) -> None:
-    """Write a procedural multi-room indoor scene in Replica's format, with a trajectory through every room."""
+    """Write a procedural indoor scene in Replica's format (a home, --house, or a multi-floor --building), with a
+    trajectory through every room."""
     from ..datasets.synth import run_synth
 
     s = run_synth(SynthConfig(**o))
-    corridor = " and a corridor" if s["corridor"] else ""
-    typer.echo(f"{o['out']}: {s['rooms']} rooms{corridor}, {s['faces']} quads, {s['objects']} objects, "
+    if s["floors"]:
+        where = f" on {s['floors']} floors ({s['floor_area']:.0f} m², corridors and a staircase)"
+    else:
+        where = " and a corridor" if s["corridor"] else ""
+    typer.echo(f"{o['out']}: {s['rooms']} rooms{where}, {s['faces']} quads, {s['objects']} objects, "
                f"{len(s['classes'])} classes, {s['frames']} poses over {s['path_m']:.1f} m")
 
 

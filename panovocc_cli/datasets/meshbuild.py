@@ -100,7 +100,8 @@ class MeshBuilder:
         sa, sb, ta, tb = sa[keep], sb[keep], ta[keep], tb[keep]
         O, U, V = (np.asarray(x, dtype=np.float64) for x in (origin, U, V))
         corners = [(sa, ta), (sb, ta), (sb, tb), (sa, tb)]
-        if np.dot(np.cross(U, V), normal) < 0:
+        (u0, u1, u2), (v0, v1, v2), (n0, n1, n2) = U.tolist(), V.tolist(), np.asarray(normal, dtype=np.float64).tolist()
+        if (u1 * v2 - u2 * v1) * n0 + (u2 * v0 - u0 * v2) * n1 + (u0 * v1 - u1 * v0) * n2 < 0:  # (U x V) . normal
             corners = corners[::-1]
         q = np.stack([O + s[:, None] * U + t[:, None] * V for s, t in corners], axis=1)
         self.quads(obj, paint, tf.point(q))
@@ -165,6 +166,16 @@ class MeshBuilder:
                 P = c + P * r * bump[..., None]
                 out.append(np.stack([P[:-1, :-1], P[1:, :-1], P[1:, 1:], P[:-1, 1:]], axis=2).reshape(-1, 4, 3))
         self.quads(obj, paint, tf.point(np.concatenate(out)))
+
+    def mark(self) -> tuple[int, int]:
+        """A state to come back to with :meth:`rollback`: (quad batches, objects) so far."""
+        return len(self._quads), len(self.object_classes)
+
+    def rollback(self, mark: tuple[int, int]) -> None:
+        """Drop every quad and object added since :meth:`mark` gave ``mark`` (paints stay registered)."""
+        nq, no = mark
+        del self._quads[nq:], self._obj[nq:], self._paint[nq:]
+        del self.object_classes[no:], self.object_tint[no:], self.object_waves[no:]
 
     # -- output --------------------------------------------------------------------------------------
     def finish(self):

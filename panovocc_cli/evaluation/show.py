@@ -150,3 +150,99 @@ def coverage_figure(frames: np.ndarray, panoramic: np.ndarray, perspective: np.n
         ax.set_title(title)
     fig.tight_layout()
     return fig
+
+
+def floor_layers(grid: Grid, min_share: float = 0.3) -> list[int]:
+    """The z layers (indices into ``grid.labels``) that hold a floor: layers whose ``floor`` voxels number at
+    least ``min_share`` of the most in any layer; of consecutive such layers, the lowest. Bottom to top."""
+    ids = [k for k, n in enumerate(grid.class_names) if canonical_name(n) == "floor"]
+    if not ids:
+        raise PanovoccError("no 'floor' class in the grid: cannot find its floors")
+    count = np.isin(grid.labels, ids).sum(axis=(0, 1))
+    levels = np.nonzero(count >= min_share * count.max())[0]
+    return [int(k) for i, k in enumerate(levels) if i == 0 or levels[i - 1] != k - 1]
+
+
+def plan_image(grid: Grid, floor_layer: int, height_m: float = 1.9) -> np.ndarray:
+    """Top view of one storey, (Y, X, 3) uint8 with row 0 at the grid's smallest y: per column the class
+    colour of the highest occupied voxel from just above ``floor_layer`` up to ``height_m`` metres (walls,
+    furniture, stairs: under the ceiling), else that of the floor layer's voxel, white where neither."""
+    from .render_grid import palette
+
+    top = min(grid.labels.shape[2], floor_layer + 1 + int(round(height_m / grid.voxel_size)))
+    slab = grid.labels[:, :, floor_layer + 1:top]
+    occ = (slab != EMPTY) & (slab != UNKNOWN)
+    k = slab.shape[2] - 1 - np.argmax(occ[:, :, ::-1], axis=2)  # highest occupied layer of each column
+    lab = np.take_along_axis(slab, k[:, :, None], axis=2)[:, :, 0]
+    base = grid.labels[:, :, floor_layer]
+    lab = np.where(occ.any(axis=2), lab, np.where((base != EMPTY) & (base != UNKNOWN), base, EMPTY))
+    rgb = palette(grid)[lab]
+    rgb[lab == EMPTY] = 255
+    return np.ascontiguousarray(rgb.transpose(1, 0, 2))
+
+
+def floor_plans_figure(grid: Grid, T_world_cam: np.ndarray, title: str | None = None, width_px: int = 2000,
+                       eye_min_m: float = 1.0, x_range: tuple[float, float] | None = None):
+    """A floor plan per storey (:func:`plan_image`, bottom floor last) with the part of the walk that is on it:
+    a line coloured by frame number (start ^, end s), world metres on both axes (``x_range``: only that part
+    of the x axis, metres).
+
+    A pose belongs to the highest floor at least ``eye_min_m`` below the camera, so on a staircase the walk
+    moves to the next floor's panel half-way up. Returns a matplotlib Figure ``width_px`` wide.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Patch
+
+    layers = floor_layers(grid)
+    h = grid.voxel_size
+    lo = grid.origin - h / 2
+    hi = lo + np.array(grid.labels.shape) * h
+    floor_z = lo[2] + np.array(layers) * h  # bottom face of each floor layer
+    P = np.asarray(T_world_cam)[:, :3, 3]
+    level = np.searchsorted(floor_z, P[:, 2] - eye_min_m, side="right") - 1
+    n = len(layers)
+    xlim = (lo[0], hi[0]) if x_range is None else (max(lo[0], x_range[0]), min(hi[0], x_range[1]))
+    if xlim[1] <= xlim[0]:
+        raise PanovoccError(f"x range {x_range} misses the grid's {lo[0]:.2f}..{hi[0]:.2f} m")
+    aspect = (hi[1] - lo[1]) / (xlim[1] - xlim[0])
+    panel_h = width_px * 0.9 * aspect
+    legend = classes_present([grid], grid.index0, grid.index0 + np.array(grid.labels.shape) - 1)
+    ncol = max(1, min(len(legend), int(width_px * 0.6 // 110)))
+    head, foot = (40 if title else 10), 50 + 20 * math.ceil(len(legend) / ncol)
+    height_px = int(round(n * (panel_h + 34) + head + foot))
+    fig = plt.figure(figsize=(width_px / DPI, height_px / DPI), dpi=DPI)
+    norm = plt.Normalize(0, max(1, len(P) - 1))
+    for i, k in enumerate(layers[::-1]):
+        f = n - 1 - i
+        y0 = height_px - head - (i + 1) * (panel_h + 34)
+        ax = fig.add_axes((0.05, y0 / height_px, 0.9, panel_h / height_px))
+        ax.imshow(plan_image(grid, k), origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), interpolation="nearest")
+        on = level == f
+        idx = np.nonzero(on)[0]
+        if len(idx) > 1:
+            pts = P[:, :2]
+            segs = np.stack([pts[idx[:-1]], pts[idx[:-1] + 1]], 1)[np.diff(idx) == 1]
+            lc = LineCollection(segs, cmap="viridis", norm=norm, linewidths=1.4)
+            lc.set_array(idx[:-1][np.diff(idx) == 1].astype(float))
+            ax.add_collection(lc)
+            ax.plot(*pts[idx[0]], "^", color="black", ms=7)
+            ax.plot(*pts[idx[-1]], "s", color="black", ms=6)
+        ax.set_xlim(*xlim)
+        ax.set_ylim(lo[1], hi[1])
+        ax.tick_params(labelsize=8)
+        ax.set_title(f"floor {f} (z = {floor_z[f]:.2f} m): frames {idx[0] if len(idx) else '-'}"
+                     f"-{idx[-1] if len(idx) else '-'}", fontsize=10, loc="left")
+    if title:
+        fig.text(0.5, 1.0 - 8 / height_px, title, ha="center", va="top", fontsize=13)
+    sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
+    cax = fig.add_axes((0.05, 18 / height_px, 0.25, 12 / height_px))
+    fig.colorbar(sm, cax=cax, orientation="horizontal").set_label("frame", fontsize=9)
+    handles = [Patch(facecolor=_legend_color(c), edgecolor="0.3", label=c) for c in legend]
+    fig.legend(handles=handles, loc="lower right", ncol=ncol, frameon=False, fontsize=9,
+               bbox_to_anchor=(0.95, 0.0), handlelength=1.2, columnspacing=1.0)
+    fig.set_facecolor("white")
+    return fig

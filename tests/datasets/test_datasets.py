@@ -9,7 +9,9 @@ import pytest
 from panovocc_cli.classes import EVAL8, OPEN4
 from panovocc_cli.io.ply import read_ply
 from panovocc_cli.datasets.replica import read_replica_scene, write_replica_scene
-from panovocc_cli.datasets.synth import CAM_Z, CLEARANCE, MAX_TILT_DEG, SynthConfig, generate_scene, run_synth
+from panovocc_cli.datasets.home import generate_scene
+from panovocc_cli.datasets.synth import SynthConfig, run_synth
+from panovocc_cli.datasets.trajectory import CAM_Z, CLEARANCE, MAX_TILT_DEG
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.io.poses import read_poses
 
@@ -145,7 +147,7 @@ def test_synth_room_counts(rooms):
 
 
 def test_synth_offset_is_uniform_in_millimetres_ties_included():
-    from panovocc_cli.datasets.synth import lattice_offset
+    from panovocc_cli.datasets.layout import lattice_offset
 
     off = np.array([lattice_offset(s) for s in range(4000)])  # (4000, 3) metres
     mm = np.round(off * 1000.0)

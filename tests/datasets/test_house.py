@@ -10,7 +10,8 @@ import pytest
 
 from panovocc_cli.classes import EVAL8, OPEN4, canonical_name
 from panovocc_cli.datasets.house import HOUSE_ROOMS, generate_house
-from panovocc_cli.datasets.synth import CAM_Z, CLEARANCE, MAX_TILT_DEG, WALL_T
+from panovocc_cli.datasets.layout import WALL_T
+from panovocc_cli.datasets.trajectory import CAM_Z, CLEARANCE, MAX_TILT_DEG
 from panovocc_cli.errors import PanovoccError
 
 SEED, FRAMES = 2, 80

@@ -69,3 +69,33 @@ def test_write_tables_files(tmp_path):
     paths = write_score_tables([res["freeocc"]], ["gt"], tmp_path / "t")
     assert [p.name for p in paths] == ["scores.csv", "scores.md", "scores.tex"]
     assert all(p.is_file() for p in paths)
+
+
+def test_floor_plans_two_storeys_closed_form(tmp_path):
+    """Two floors (layers 0 and 5) of a 6 x 4 grid: a wall column on each, a chair on the upper one; the plan
+    shows per column the highest thing above the floor, else the floor, white where there is no floor (the
+    upper floor's stairwell); the walk is split between the panels by height."""
+    from panovocc_cli.evaluation.show import floor_layers, floor_plans_figure, plan_image
+
+    names = ["empty", "floor", "wall", "chair"]
+    lab = np.zeros((6, 4, 10), np.uint8)
+    lab[:, :, 0] = 1
+    lab[:, :, 5] = 1
+    lab[4:, :, 5] = 0  # a hole in the upper floor
+    lab[0, :, 1:5] = 2  # a wall on the ground floor
+    lab[0, :, 6:10] = 2
+    lab[2, 1, 6] = 3  # a chair upstairs
+    g = Grid(lab, np.array([0.04, 0.04, 0.04]), 0.08, names)
+    assert floor_layers(g) == [0, 5]
+    low, up = plan_image(g, 0, height_m=0.3), plan_image(g, 5, height_m=0.3)
+    assert low.shape == up.shape == (4, 6, 3)  # rows = y, columns = x
+    assert tuple(low[0, 0]) == class_color("wall") and tuple(low[2, 3]) == class_color("floor")
+    assert tuple(up[1, 2]) == class_color("chair") and tuple(up[0, 5]) == (255, 255, 255)
+    T = np.tile(np.eye(4), (4, 1, 1))
+    T[:, 2, 3] = [0.2, 0.2, 0.6, 0.62]  # two poses on each floor (eye_min_m = 0.15 above its bottom face)
+    T[:, 0, 3] = [0.1, 0.2, 0.3, 0.4]
+    fig = floor_plans_figure(g, T, width_px=400, eye_min_m=0.15)
+    titles = sorted(ax.get_title(loc="left") for ax in fig.axes if ax.get_title(loc="left"))
+    assert titles[0].startswith("floor 0") and "frames 0-1" in titles[0] and "frames 2-3" in titles[1]
+    write_png(fig, tmp_path / "plans.png")
+    assert (tmp_path / "plans.png").stat().st_size > 0
