@@ -1,5 +1,5 @@
 """Commands: ``traj eval`` (ATE / RPE of an estimated trajectory, as evo computes them) and ``traj perturb``
-(a seeded drifting trajectory)."""
+(a seeded drifting and jittered trajectory)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from ..evaluation.trajectory_run import TrajEvalConfig, TrajPerturbConfig
 from ._app import app
 from .options import OptionValues, config_command
 
-traj_app = typer.Typer(help="Trajectories: accuracy against a reference (ATE, RPE) and seeded drift.",
+traj_app = typer.Typer(help="Trajectories: accuracy against a reference (ATE, RPE), seeded drift and jitter.",
                        no_args_is_help=True)
 app.add_typer(traj_app, name="traj")
 
@@ -34,7 +34,8 @@ def traj_eval(o: OptionValues,
 @config_command(traj_app, TrajPerturbConfig, "perturb")
 def traj_perturb(o: OptionValues,
                  overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT.")) -> None:
-    """Write a seeded drifting copy of GT (random-walk translation and rotation drift) to OUT."""
+    """Write a seeded perturbed copy of GT to OUT: random-walk drift (--drift, --drift-per-m, --rot-drift-deg),
+    then independent per-frame jitter (--jitter, --rot-jitter-deg)."""
     from ..evaluation.trajectory_run import run_traj_perturb
 
     s = run_traj_perturb(TrajPerturbConfig(**o), overwrite=overwrite)

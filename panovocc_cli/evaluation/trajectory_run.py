@@ -8,8 +8,10 @@ evo does. ``--plot PNG`` draws both trajectories from above (x-y plane, world +Z
 writes :meth:`TrajectoryResult.summary`. NICE-SLAM files count their lines as timestamps 0, 1, 2, ... (a
 frame index, as ``write_tum`` writes TUM stamps), so the two forms can be mixed.
 
-``panovocc traj perturb GT OUT``: a seeded drifting copy of GT (:func:`~panovocc_cli.geometry.drift.drift_trajectory`),
-written as TUM when OUT ends in ``.tum`` (GT's timestamps kept), else in NICE-SLAM form.
+``panovocc traj perturb GT OUT``: a seeded perturbed copy of GT: drift accumulated along the path
+(:func:`~panovocc_cli.geometry.drift.drift_trajectory`), then independent per-frame jitter
+(:func:`~panovocc_cli.geometry.drift.jitter_trajectory`), written as TUM when OUT ends in ``.tum`` (GT's
+timestamps kept), else in NICE-SLAM form.
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ class TrajEvalConfig:
 
 @dataclass
 class TrajPerturbConfig:
-    """``panovocc traj perturb``: a seeded drifting copy of a trajectory (geometry/drift.py's model)."""
+    """``panovocc traj perturb``: a seeded perturbed copy of a trajectory (geometry/drift.py's models): drift
+    along the path, then per-frame jitter."""
 
     gt: str = option(cli_type=Path, parse=str, argument=True, metavar="GT",
                      help="Trajectory to perturb (TUM or NICE-SLAM form).")
@@ -58,7 +61,12 @@ class TrajPerturbConfig:
                                                 "each step's error / step length (0.01 = 1 %).")
     rot_drift_deg: float = option(0.0, min=0, help="Rotation random walk: std per axis of each step's "
                                                   "rotation error, degrees per frame.")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the drift; the same seed gives the same file.")
+    jitter: float = option(0.0, min=0, max=100, help="Per-frame translation jitter: std per camera axis of each "
+                                                     "frame's own error, metres (not accumulated).")
+    rot_jitter_deg: float = option(0.0, min=0, max=180, help="Per-frame rotation jitter: std per camera axis of "
+                                                             "each frame's own rotation error, degrees.")
+    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the drift and the jitter; the same seed gives the same "
+                                                 "file.")
 
 
 def associate(stamps_est, stamps_ref, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
@@ -135,8 +143,9 @@ def run_traj_eval(cfg: TrajEvalConfig, overwrite: bool = False) -> TrajectoryRes
 
 
 def run_traj_perturb(cfg: TrajPerturbConfig, overwrite: bool = False) -> dict:
-    """Write a drifting copy of ``cfg.gt`` to ``cfg.out`` and its config beside (``OUT.config.json``)."""
-    from ..geometry.drift import drift_trajectory
+    """Write a perturbed copy of ``cfg.gt`` (drift, then jitter) to ``cfg.out`` and its config beside
+    (``OUT.config.json``)."""
+    from ..geometry.drift import drift_trajectory, jitter_trajectory
     from ..io.atomic import check_output
     from ..io.poses import read_trajectory, write_poses, write_tum
     from ..io.runconfig import config_path_beside, write_run_config
@@ -146,6 +155,7 @@ def run_traj_perturb(cfg: TrajPerturbConfig, overwrite: bool = False) -> dict:
     t, T, _ = read_trajectory(cfg.gt)
     D = drift_trajectory(T, trans_m_per_sqrt_frame=cfg.drift, trans_m_per_m=cfg.drift_per_m,
                          rot_deg_per_frame=cfg.rot_drift_deg, seed=cfg.seed)
+    D = jitter_trajectory(D, trans_m=cfg.jitter, rot_deg=cfg.rot_jitter_deg, seed=cfg.seed)
     if str(cfg.out).lower().endswith(".tum"):
         write_tum(cfg.out, D, timestamps=t)
     else:

@@ -136,3 +136,38 @@ def test_traj_perturb_then_eval_command_line(tmp_path, capsys):
     assert r["ate_m"]["rmse"] == pytest.approx(ape["rmse"], rel=1e-9)
     assert f"rmse {ape['rmse']:.4f}" in out
     assert (tmp_path / "top.png").stat().st_size > 1000 and (tmp_path / "top.config.json").is_file()
+
+
+def test_traj_perturb_jitter_command_line(tmp_path, capsys):
+    """--jitter / --rot-jitter-deg: per-frame noise on top of the drift, seeded; ATE near the jitter's sigma."""
+    import json
+
+    from panovocc_cli.geometry.drift import jitter_trajectory
+
+    T = _helix(400)
+    write_poses(tmp_path / "gt.txt", T)
+    args = ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "j.txt", "--jitter", "0.01", "--rot-jitter-deg",
+            "0.1", "--seed", "2"]
+    code, out, err = run_cli(capsys, args)
+    assert code == 0, err
+    first = (tmp_path / "j.txt").read_bytes()
+    assert run_cli(capsys, args + ["--overwrite"])[0] == 0 and (tmp_path / "j.txt").read_bytes() == first
+    cfg = json.loads((tmp_path / "j.config.json").read_text())
+    assert cfg["jitter"] == 0.01 and cfg["rot_jitter_deg"] == 0.1
+    _, J, form = read_trajectory(tmp_path / "j.txt")
+    assert form == "nice-slam" and np.allclose(J, jitter_trajectory(T, trans_m=0.01, rot_deg=0.1, seed=2), atol=1e-12)
+    # unaligned ATE of per-axis sigma 1 cm: sqrt(3) cm RMS in position (the rotation jitter turns the
+    # camera about its own centre and moves no position)
+    code, out, err = run_cli(capsys, ["traj", "eval", tmp_path / "j.txt", tmp_path / "gt.txt", "--align", "none",
+                                      "--json", tmp_path / "r.json"])
+    assert code == 0, err
+    assert json.loads((tmp_path / "r.json").read_text())["ate_m"]["rmse"] == pytest.approx(0.01 * np.sqrt(3), rel=0.1)
+    # drift and jitter together: the drift of the same seed, then the jitter on top
+    code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "dj.txt", "--drift", "0.002",
+                                    "--jitter", "0.01", "--seed", "2"])
+    assert code == 0, err
+    _, DJ, _ = read_trajectory(tmp_path / "dj.txt")
+    expect = jitter_trajectory(drift_trajectory(T, trans_m_per_sqrt_frame=0.002, seed=2), trans_m=0.01, seed=2)
+    assert np.allclose(DJ, expect, atol=1e-12)
+    code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "bad.txt", "--jitter", "-1"])
+    assert code == 2 and "--jitter" in err and not (tmp_path / "bad.txt").exists()

@@ -94,3 +94,64 @@ def test_same_seed_scales_linearly_in_translation():
 def test_bad_input_is_a_panovocc_error(bad):
     with pytest.raises(PanovoccError, match="drift"):
         drift_trajectory(**bad)
+
+
+# --- per-frame jitter -------------------------------------------------------------------------------
+
+
+def _rotvec_small(R):
+    """Rotation vectors (n, 3) radians of nearly-identity rotations (their skew part)."""
+    return np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1) / 2
+
+
+def test_jitter_errors_are_independent_per_frame_with_the_stated_sigmas():
+    from panovocc_cli.geometry.drift import jitter_trajectory
+
+    n = 6000
+    T = _line(n, step_m=0.2)
+    J = jitter_trajectory(T, trans_m=0.01, rot_deg=0.1, seed=0)
+    err = np.linalg.inv(T) @ J                          # J_i, in camera i's frame
+    tau = err[:, :3, 3]
+    assert np.std(tau, axis=0) == pytest.approx([0.01] * 3, rel=0.05)
+    assert np.abs(np.mean(tau, axis=0)).max() < 0.01 * 4 / np.sqrt(n)
+    w = _rotvec_small(err[:, :3, :3])
+    assert np.rad2deg(np.std(w, axis=0)) == pytest.approx([0.1] * 3, rel=0.05)
+    # not accumulated: the error of the last frame is no larger than any other's, and consecutive
+    # frames' errors are uncorrelated (drift's would be nearly equal)
+    assert abs(np.corrcoef(tau[:-1, 0], tau[1:, 0])[0, 1]) < 0.05
+    assert np.linalg.norm(tau[-1]) < 0.06
+    # every frame is jittered, the first included; all stay rigid
+    assert not np.allclose(J[0], T[0])
+    for P in J[::97]:
+        check_rigid(P, tol=1e-10)
+
+
+def test_jitter_is_seeded_scales_and_leaves_the_drift_alone():
+    from panovocc_cli.geometry.drift import jitter_trajectory
+
+    T = _line(30)
+    a = jitter_trajectory(T, trans_m=0.005, rot_deg=0.05, seed=3)
+    assert a.tobytes() == jitter_trajectory(T, trans_m=0.005, rot_deg=0.05, seed=3).tobytes()
+    assert not np.allclose(a, jitter_trajectory(T, trans_m=0.005, rot_deg=0.05, seed=4))
+    # at one seed a larger translation jitter is the same jitter scaled
+    t1 = (np.linalg.inv(T) @ jitter_trajectory(T, trans_m=0.01, seed=3))[:, :3, 3]
+    t2 = (np.linalg.inv(T) @ jitter_trajectory(T, trans_m=0.02, seed=3))[:, :3, 3]
+    assert np.allclose(t2, 2 * t1, atol=1e-12)
+    # its own stream: not the drift's numbers (whose first step would be scaled by the same normals)
+    D = drift_trajectory(T, trans_m_per_sqrt_frame=0.01, seed=3)
+    d_err = (np.linalg.inv(_steps(T)) @ _steps(D))[:, :3, 3]
+    assert not np.allclose(t1[1:], d_err, atol=1e-6)
+    assert np.array_equal(jitter_trajectory(T, seed=3), T)  # zero jitter: unchanged
+
+
+@pytest.mark.parametrize("bad", [
+    dict(T_world_cam=np.eye(4)),
+    dict(T_world_cam=np.full((2, 4, 4), np.inf)),
+    dict(T_world_cam=np.tile(np.eye(4), (2, 1, 1)), trans_m=-0.1),
+    dict(T_world_cam=np.tile(np.eye(4), (2, 1, 1)), rot_deg=float("nan")),
+])
+def test_jitter_bad_input_is_a_panovocc_error(bad):
+    from panovocc_cli.geometry.drift import jitter_trajectory
+
+    with pytest.raises(PanovoccError, match="jitter"):
+        jitter_trajectory(**bad)
