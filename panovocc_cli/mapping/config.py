@@ -192,6 +192,8 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
                             "(a newer panovocc wrote it, or the file is corrupt)", where)
     try:
         g = typed_from_json(GeometryParams, d["geometry"])
+        if "observe_hits" not in d["geometry"]:  # made before O counted N: resume and revise as it was made
+            g = dataclasses.replace(g, observe_hits=False)
         o = typed_from_json(OccupancyParams, d["occupancy"])
         s = SemanticParams.from_json(d.get("semantic"))
         origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]

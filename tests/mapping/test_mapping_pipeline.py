@@ -25,7 +25,8 @@ def room_seq(tmp_path_factory):
 
 
 def _cfg(seq, out, **kw):
-    return MapConfig(seq=str(seq), out=str(out), checkpoint_every=2, geometry=GeometryParams(), **kw)
+    kw.setdefault("geometry", GeometryParams())
+    return MapConfig(seq=str(seq), out=str(out), checkpoint_every=2, **kw)
 
 
 def _bytes(out):
@@ -389,3 +390,30 @@ def test_frame_times_csv_and_the_scale_benchmarks_figures(room_seq, tmp_path):
     for T in Q:
         np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(Q[6, :3, 3] - P[6, :3, 3]), 0.01, atol=1e-9)  # the pivot: 1 cm
+
+
+def test_o_counts_every_frame_that_saw_surface_and_older_maps_keep_their_rule(room_seq, tmp_path):
+    """Issue 26, 'one stray hit is occupied forever': the frequency rule N / max(O, 1) let a voxel with a
+    measurement and no valid comparison of its centre (O = 0) count as always seen surface. A frame that
+    puts a measurement in a voxel has observed it, so it counts in O too: N <= O everywhere, N / O is the
+    share of observations that saw surface, and O = 0 only where N = 0 (never occupied). A map made before
+    (its config.json without the key) resumes and revises with the old count, so it stays exact."""
+    import dataclasses
+
+    from panovocc_cli.mapping import Mapper
+
+    out = tmp_path / "m"
+    run_map(_cfg(room_seq, out), progress=False)
+    keys, ch = Mapper.load(out).memory.nonzero()
+    N, O = ch["N"][:, 0], ch["O"][:, 0]
+    assert (N <= O).all() and (N > 0).any()
+    old = tmp_path / "old"
+    cfg = _cfg(room_seq, old, geometry=dataclasses.replace(GeometryParams(), observe_hits=False))
+    run_map(cfg, progress=False)
+    d = json.loads((old / "config.json").read_text())
+    del d["geometry"]["observe_hits"]  # as a map made before the rule writes it
+    (old / "config.json").write_text(json.dumps(d))
+    m = Mapper.load(old)
+    assert m.config.geometry.observe_hits is False
+    _, ch0 = m.memory.nonzero()
+    assert (ch0["N"][:, 0] > ch0["O"][:, 0]).any()  # the old count: measurements without a valid comparison

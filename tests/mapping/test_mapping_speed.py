@@ -96,13 +96,16 @@ def test_extract_and_frame_box_match_numpy():
     lo = np.array([-5, 3, -200], np.int64)
     hits = (rng.random(shape) < 0.1).astype(np.uint8)
     scale, n_fill = float(2 ** 16), np.int64(np.ceil(0.3 * 2 ** 16))
-    keys, rows = _extract(A, hits, F, O, lo, scale, n_fill)
     a = np.rint(A * scale).astype(np.int64)
     n = ((hits != 0) | (a >= n_fill)).astype(np.int64)
     keep = (O != 0) | (a != 0) | (n != 0)
     ijk = np.argwhere(keep) + lo + (1 << 20)
-    np.testing.assert_array_equal(keys, (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2])
-    np.testing.assert_array_equal(rows, np.stack([a[keep], n[keep], F[keep], O[keep]], 1))
+    for observe_hits in (False, True):  # O counts a frame counted in N (True), or only comparisons (older maps)
+        keys, rows = _extract(A, hits, F, O, lo, scale, n_fill, observe_hits)
+        o = np.maximum(O, n) if observe_hits else O
+        np.testing.assert_array_equal(keys, (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2])
+        np.testing.assert_array_equal(rows, np.stack([a[keep], n[keep], F[keep], o[keep]], 1))
+    assert (n > O).any()  # the case exists in this grid
     x = rng.normal(0, 2, (500, 3))
     half = rng.random((500, 3)) * 0.2
     cam = np.array([0.1, -0.3, 0.2])

@@ -75,16 +75,19 @@ def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, hits):
 
 
 @nb.njit(cache=True, inline="always")
-def _voxel_row(a, hit, o, scale, n_fill):
-    """A voxel's fixed-point support, its frame count (a measurement inside, or support >= n_fill) and
-    whether it enters the delta (support, a measurement or a valid comparison)."""
+def _voxel_row(a, hit, o, scale, n_fill, observe_hits):
+    """A voxel's fixed-point support, its frame count (a measurement inside, or support >= n_fill), its
+    observation count (a valid comparison of its centre; with ``observe_hits`` also a frame count: a frame
+    that saw surface in the voxel observed it, so N <= O) and whether it enters the delta (support, a
+    measurement or a valid comparison)."""
     q = np.int64(np.rint(a * scale))
     n = 1 if (hit != 0 or q >= n_fill) else 0
-    return q, n, o != 0 or q != 0 or n != 0
+    oo = 1 if (o != 0 or (observe_hits and n != 0)) else 0
+    return q, n, oo, o != 0 or q != 0 or n != 0
 
 
 @nb.njit(cache=True, parallel=True)
-def _extract(A, hits, F, O, lo, scale, n_fill):
+def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
     """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support, a
     measurement or O != 0. Two passes over slabs of constant i (count, then fill at each slab's prefix
     offset)."""
@@ -94,7 +97,7 @@ def _extract(A, hits, F, O, lo, scale, n_fill):
         c = 0
         for j in range(ny):
             for k in range(nz):
-                if _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)[2]:
+                if _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill, observe_hits)[3]:
                     c += 1
         counts[i + 1] = c
     for i in range(nx):
@@ -106,13 +109,13 @@ def _extract(A, hits, F, O, lo, scale, n_fill):
         n = counts[i]
         for j in range(ny):
             for k in range(nz):
-                a, nn, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill)
+                a, nn, oo, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill, observe_hits)
                 if keep:
                     keys[n] = _pack(i + lo[0], j + lo[1], k + lo[2])
                     out[n, 0] = a
                     out[n, 1] = nn
                     out[n, 2] = F[i, j, k]
-                    out[n, 3] = O[i, j, k]
+                    out[n, 3] = oo
                     n += 1
     return keys, out
 
@@ -226,5 +229,5 @@ def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None
     else:
         _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
     n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
-    keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill)
+    keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill, bool(p.observe_hits))
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})
