@@ -269,7 +269,6 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
     check_output(cfg.out_png, "picture", cfg.overwrite, inputs=cfg.grids, folder=False)
     if cfg.out_png.suffix.lower() != ".png":
         raise PanovoccError("output must be a .png file", cfg.out_png)
-    _not_an_input(cfg.out_png, cfg.grids)
     grids = [read_grid(p) for p in cfg.grids]
     images, legend = render_panels(grids, cfg.cut_top, panel_px=max(64, cfg.width_px // len(grids)))
     fig, size = panels_figure(images, legend, cfg.titles, cfg.width_px)
@@ -280,15 +279,6 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
 
 
 # -------------------------------------------------------------------------------------- convert
-def _not_an_input(out: Path, inputs) -> None:
-    """Refuse an output path that is one of the command's inputs (it would be overwritten)."""
-    import os
-
-    for p in inputs:
-        if p is not None and os.path.abspath(p) == os.path.abspath(out):
-            raise PanovoccError(f"output would overwrite the input {p}; choose another output path", out)
-
-
 @dataclass
 class ConvertReplicaOccConfig:
     """Options of ``panovocc convert replicaocc``.
@@ -329,7 +319,6 @@ def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
     cfg = validate_config(cfg)
     names_file = Path(cfg.class_names) if cfg.class_names and "," not in cfg.class_names else None
     check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=(cfg.pkl, names_file), folder=False)
-    _not_an_input(cfg.out_npz, [cfg.pkl])
     names = parse_class_names(cfg.class_names) if cfg.class_names else None
     data = load_pickle(cfg.pkl)
     grid, shift = replicaocc_to_grid(data, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift, cfg.pkl)
@@ -375,7 +364,6 @@ def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
 
     cfg = validate_config(cfg)
     check_output(cfg.out_pkl, "pickle", cfg.overwrite, inputs=(cfg.grid, cfg.like), folder=False)
-    _not_an_input(cfg.out_pkl, [cfg.grid, cfg.like])
     grid = read_grid(cfg.grid)
     if cfg.like is not None:
         ref = read_grid(cfg.like)

@@ -113,7 +113,7 @@ def run_view(cfg: ViewConfig, spawn: bool | None = None, progress: bool = False)
     if out is not None:
         if out.suffix != ".rrd":
             raise PanovoccError("expected a .rrd file name (Rerun's recording format)", out)
-        check_output(out, "recording", cfg.overwrite, inputs=(cfg.map,), folder=False)
+        check_output(out, "recording", cfg.overwrite, inputs=(cfg.map, cfg.gt), folder=False)
     seq = None
     note = ""
     if not cfg.no_images and len(poses):

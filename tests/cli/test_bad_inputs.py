@@ -201,6 +201,17 @@ def precomputed(b: Path, t: Path, frames=(0, 1, 2, 3), bad: bytes | None = None)
     return d
 
 
+def link(path: Path, target: Path) -> Path:
+    """A symbolic link ``path`` -> ``target``."""
+    path.symlink_to(target)
+    return path
+
+
+def copied(src: Path, dst: Path) -> Path:
+    shutil.copyfile(src, dst)
+    return dst
+
+
 def pkl(t: Path, obj) -> Path:
     p = t / "in.pkl"
     with open(p, "wb") as f:
@@ -348,6 +359,49 @@ CASES = [
     C("input", "eval-out-holds-pred",
       lambda b, t: ["eval", (write(t / "e" / "scores.json", "{}"), shutil.copy(b / "pred.npz", t / "e" / "p.npz"),
                              t / "e" / "p.npz")[2], b / "gt.npz", "--out", t / "e", "--overwrite"], "input"),
+    # --- an output is never an input, never inside a folder input, not even through a link; a file output never
+    # replaces a file of a map, sequence or scene (issue 26): every writing command
+    C("input", "relabel-onto-map-memory", lambda b, t: ["relabel", map_copy(b, t), t / "map" / "memory.npz", "--vocab",
+                                                        "bed,sofa", "--overwrite"], "input"),
+    C("input", "query-out-onto-map-config", lambda b, t: ["query", map_copy(b, t), "bed", "--out",
+                                                          t / "map" / "config.json", "--overwrite"], "input"),
+    C("input", "query-out-onto-map-ply", lambda b, t: ["query", map_copy(b, t), "bed", "--out", t / "map" / "map.ply",
+                                                       "--overwrite"], "input"),
+    C("input", "convert-onto-map-memory", lambda b, t: ["convert", "replicaocc", b / "in.pkl",
+                                                        map_copy(b, t) / "memory.npz", "--overwrite"], "panovocc map"),
+    C("input", "to-replicaocc-onto-map-memory",
+      lambda b, t: ["convert", "to-replicaocc", map_copy(b, t) / "prediction.npz", t / "map" / "memory.npz",
+                    "--overwrite"], "panovocc map"),
+    C("input", "gt-lift-onto-frame", lambda b, t: ["gt", "--from-sequence", seq_copy(b, t),
+                                                   t / "seq" / "depth" / "000000.png", "--overwrite", "--quiet"],
+      "input"),
+    C("input", "gt-inside-scene", lambda b, t: ["gt", scene_copy(b, t), t / "scene" / "g.npz"], "input"),
+    C("input", "merge-out-links-to-input",
+      lambda b, t: ["baselines", "merge", link(t / "m.npz", copied(b / "pred.npz", t / "p.npz")), t / "p.npz",
+                    "--overwrite"], "input"),
+    C("input", "show-out-links-to-grid",
+      lambda b, t: ["show", copied(b / "gt.npz", t / "g.npz"), link(t / "p.png", t / "g.npz"), "--overwrite"],
+      "input"),
+    C("input", "perturb-out-links-to-input",
+      lambda b, t: ["traj", "perturb", copied(b / "seq" / "poses.txt", t / "p.txt"), link(t / "o.txt", t / "p.txt"),
+                    "--overwrite"], "input"),
+    C("input", "render-inside-scene", lambda b, t: ["render", scene_copy(b, t), t / "scene" / "seq"], "input"),
+    C("input", "views-inside-seq", lambda b, t: ["views", seq_copy(b, t), t / "seq" / "v"], "input"),
+    C("input", "map-inside-seq", lambda b, t: ["map", seq_copy(b, t), t / "seq" / "m", *Q], "input"),
+    C("input", "map-rerun-inside-seq", lambda b, t: ["map", seq_copy(b, t), t / "m", "--rerun", t / "seq" / "r.rrd",
+                                                     *Q], "input"),
+    C("input", "map-frame-times-onto-poses",
+      lambda b, t: ["map", seq_copy(b, t), t / "m", "--frame-times", t / "seq" / "poses.txt", "--overwrite", *Q],
+      "input"),
+    C("input", "coverage-inside-seq", lambda b, t: ["coverage", seq_copy(b, t), b / "gt.npz", "--out",
+                                                    t / "seq" / "c"], "input"),
+    C("input", "baselines-run-inside-seq", lambda b, t: ["baselines", "run", "single-pano", seq_copy(b, t),
+                                                         t / "seq" / "o", *Q], "input"),
+    C("input", "view-out-inside-map", lambda b, t: ["view", map_copy(b, t), "--out", t / "map" / "v.rrd", *Q],
+      "input"),
+    C("input", "eval-out-links-to-pred-folder",
+      lambda b, t: ["eval", copied(b / "pred.npz", (t / "d").mkdir() or t / "d" / "p.npz"), b / "gt.npz", "--out",
+                    link(t / "e", t / "d"), "--overwrite"], "input"),
     # --- pose files
     C("poses", "tum-zero-quaternion",
       lambda b, t: ["map", b / "seq", t / "out", "--poses", poses_file(t, tum_lines(4, "0 0 0 0")), *Q], "quaternion"),
