@@ -24,7 +24,7 @@ from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTU
 from ..errors import PanovoccError
 from ..io.atomic import check_output, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
-from ..io.runconfig import config_path_beside, write_run_config
+from ..io.runconfig import check_file_output, write_run_config
 from ..io.tables import write_csv
 from ..io.tables import write_tables as write_table_files
 from .metrics import HEADLINE_MASK, MASK_LABELS, MASKS, Result, evaluate, resolve_classes
@@ -266,7 +266,7 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
         raise PanovoccError("no grids to show")
     if cfg.titles is not None and len(cfg.titles) != len(cfg.grids):
         raise PanovoccError(f"{len(cfg.titles)} titles for {len(cfg.grids)} grids")
-    check_output(cfg.out_png, "picture", cfg.overwrite, inputs=cfg.grids, folder=False)
+    config_path = check_file_output(cfg.out_png, "picture", cfg.overwrite, inputs=cfg.grids)
     if cfg.out_png.suffix.lower() != ".png":
         raise PanovoccError("output must be a .png file", cfg.out_png)
     grids = [read_grid(p) for p in cfg.grids]
@@ -274,7 +274,7 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
     fig, size = panels_figure(images, legend, cfg.titles, cfg.width_px)
     with output_file(cfg.out_png):
         write_png(fig, cfg.out_png)
-    write_config(config_path_beside(cfg.out_png), cfg)
+    write_config(config_path, cfg)
     return size
 
 
