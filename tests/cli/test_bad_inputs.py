@@ -422,6 +422,17 @@ CASES = [
                                           "--vocab", "bed,sofa"], "overwrite"),
     C("sidecar", "view", lambda b, t: ["view", b / "map", "--out", (write(t / "v.config.json", "{}"), t / "v.rrd")[1],
                                        *Q], "overwrite"),
+    # --- no two outputs of one command at one path (issue 26)
+    C("twice", "traj-eval-plot-is-json",
+      lambda b, t: ["traj", "eval", map_poses(b), b / "seq" / "poses.txt", "--align", "none", "--plot", t / "x.png",
+                    "--json", t / "x.png"], "two outputs"),
+    C("twice", "traj-eval-json-is-plot-config",
+      lambda b, t: ["traj", "eval", map_poses(b), b / "seq" / "poses.txt", "--align", "none", "--plot", t / "x.png",
+                    "--json", t / "x.config.json"], "two outputs"),
+    C("twice", "map-rerun-is-frame-times", lambda b, t: ["map", b / "seq", t / "m", "--rerun", t / "x.rrd",
+                                                         "--frame-times", t / "x.rrd", *Q], "two outputs"),
+    C("twice", "map-frame-times-is-out", lambda b, t: ["map", b / "seq", t / "m", "--frame-times", t / "m", *Q],
+      "two outputs"),
     # --- pose files
     C("poses", "tum-zero-quaternion",
       lambda b, t: ["map", b / "seq", t / "out", "--poses", poses_file(t, tum_lines(4, "0 0 0 0")), *Q], "quaternion"),
