@@ -48,6 +48,16 @@ def _printable(text: str) -> str:
     return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
+def _end_progress_bars() -> None:
+    """Close the progress bars a failed command left open (a bar driven from a generator is closed only when it is
+    collected), so that the error line starts a line of its own instead of trailing the bar."""
+    tqdm_module = sys.modules.get("tqdm")
+    if tqdm_module is None:
+        return
+    for bar in list(getattr(tqdm_module.tqdm, "_instances", ())):
+        bar.close()
+
+
 def load_commands(argv: list[str] | None = None) -> typer.Typer:
     """Register the commands on :data:`app` and return it: those of ``argv[0]``'s modules when it names a
     command of :data:`COMMAND_HOMES` (so ``panovocc map ...`` imports no other command's libraries),
@@ -87,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
     except PanovoccError as e:
+        _end_progress_bars()
         print(f"error: {_printable(str(e))}", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
     except click.exceptions.ClickException as e:
@@ -96,11 +107,13 @@ def main(argv: list[str] | None = None) -> int:
         print("aborted", file=sys.stderr)
         sys.exit(130)
     except OSError as e:  # disk full, read-only file system, a path the OS refuses: one line naming it
+        _end_progress_bars()
         where = e.filename if e.filename is not None else "?"
         print(_printable(f"error: {os.fsdecode(where) if isinstance(where, bytes) else where}: {e.strerror or e}"),
               file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
     except KeyboardInterrupt:
+        _end_progress_bars()
         print("interrupted", file=sys.stderr)
         sys.exit(130)
     sys.exit(rv if isinstance(rv, int) else 0)

@@ -690,6 +690,12 @@ CASES = [
                                                        write(t / "c.json", '{"kernal": "point"}'), *Q], "kernal"),
     C("baselines", "map-config-resume", lambda b, t: ["map", "--resume", map_copy(b, t), "--config",
                                                       write(t / "c.json", "{}"), *Q], "--config"),
+    # a failure found mid-run is printed on its own line, after the progress bar (issue 26)
+    C("baselines", "run-corrupt-frame-after-the-bar",
+      lambda b, t: ["baselines", "run", "single-pano", seq_with_frame(b, t, "depth", corrupt_idat(b, "depth")),
+                    t / "o"], "000002.png"),
+    C("baselines", "views-corrupt-frame-after-the-bar",
+      lambda b, t: ["views", seq_with_frame(b, t, "depth", corrupt_idat(b, "depth")), t / "v"], "000002.png"),
     # --- trajectories (traj eval / perturb; --poses slam)
     C("traj", "eval-missing-est", lambda b, t: ["traj", "eval", t / "no.txt", b / "seq" / "poses.txt"], "not found"),
     C("traj", "eval-bad-line", lambda b, t: ["traj", "eval", poses_file(t, "1 2 3\n"), b / "seq" / "poses.txt"],
