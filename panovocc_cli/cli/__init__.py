@@ -100,6 +100,11 @@ def main(argv: list[str] | None = None) -> int:
         _end_progress_bars()
         print(f"error: {_printable(str(e))}", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
+    except click.exceptions.UsageError as e:  # Typer's three lines (Usage / Try / Error) as one, like the rest
+        where = e.ctx.command_path if e.ctx is not None else "panovocc"
+        message = " ".join(line.strip() for line in e.format_message().splitlines() if line.strip())
+        print(_printable(f"error: {message} (see {where} -h)"), file=sys.stderr)
+        sys.exit(e.exit_code)
     except click.exceptions.ClickException as e:
         e.show()
         sys.exit(e.exit_code)

@@ -433,6 +433,14 @@ CASES = [
                                                          "--frame-times", t / "x.rrd", *Q], "two outputs"),
     C("twice", "map-frame-times-is-out", lambda b, t: ["map", b / "seq", t / "m", "--frame-times", t / "m", *Q],
       "two outputs"),
+    # --- usage errors (Typer's): one line naming the option, as every other refusal (issue 26)
+    C("usage", "unknown-option", lambda b, t: ["map", b / "seq", t / "m", "--nosuch"], "--nosuch"),
+    C("usage", "option-without-value", lambda b, t: ["coverage", b / "seq", b / "gt.npz", "--out"], "--out"),
+    C("usage", "not-a-number", lambda b, t: ["render", b / "scene", t / "q", "--width", "wide"], "--width"),
+    C("usage", "missing-argument", lambda b, t: ["traj", "eval", b / "seq" / "poses.txt"], "GT"),
+    C("usage", "unknown-command", lambda b, t: ["rendr", b / "scene", t / "q"], "rendr"),
+    C("usage", "unknown-subcommand", lambda b, t: ["convert", "replicaoc", b / "in.pkl", t / "g.npz"], "replicaoc"),
+    C("usage", "bad-choice", lambda b, t: ["eval", b / "pred.npz", b / "gt.npz", "--mask", "nosuch"], "--mask"),
     # --- pose files
     C("poses", "tum-zero-quaternion",
       lambda b, t: ["map", b / "seq", t / "out", "--poses", poses_file(t, tum_lines(4, "0 0 0 0")), *Q], "quaternion"),
