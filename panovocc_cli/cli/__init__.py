@@ -17,6 +17,7 @@ except ImportError:  # pragma: no cover
     import click
 
 from ..errors import EXIT_BAD_INPUT, PanovoccError
+from ..errors import printable as _printable
 from ._app import app
 
 # Importing a module registers its commands on ``app``, in the order --help lists them. They are
@@ -41,11 +42,6 @@ def version() -> None:
     from .. import __version__
 
     typer.echo(__version__)
-
-
-def _printable(text: str) -> str:
-    """A message with any undecodable path bytes (surrogate escapes) shown as backslash escapes, never an encoding error."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 def _end_progress_bars() -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 import typer
 
 from ..config import option, validate_config
-from ..errors import PanovoccError
+from ..errors import PanovoccError, printable
 from ..semantics.query import (DEFAULT_MARGIN, DEFAULT_MIN_SIMILARITY, DEFAULT_RELABEL_SIMILARITY,
                                DEFAULT_TEMPERATURE, TEXT_MODEL)
 from ._app import app
@@ -190,7 +190,7 @@ def _top_view(pts, cols, mask, clusters, result, h):
         ax.add_patch(Rectangle((bx0, by0), bx1 - bx0, by1 - by0, fill=False, edgecolor="black", linewidth=1.5))
         ax.text(bx0, by1, f" {k}", va="bottom", ha="left", fontsize=11, weight="bold")
     matched = ", ".join(f"{m['class']} {m['similarity']:.2f}" for m in result["match"]["matched"]) or "no class"
-    ax.set_title(f"\"{result['query']}\" -> {matched} (top view, boxes: best clusters)", fontsize=11)
+    ax.set_title(printable(f"\"{result['query']}\" -> {matched} (top view, boxes: best clusters)"), fontsize=11)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     fig.tight_layout()

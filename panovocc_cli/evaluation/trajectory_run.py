@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import DEFAULT_SEED, MATCH_MAX_DIFF, option, validate_config
-from ..errors import PanovoccError
+from ..errors import PanovoccError, printable
 from .trajectory import ALIGNMENTS, TrajectoryResult, evaluate_trajectory
 
 
@@ -113,7 +113,7 @@ def trajectory_figure(T_ref: np.ndarray, T_est_aligned: np.ndarray, title: str):
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, lw=0.3)
     ax.legend(loc="best", fontsize=8)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(printable(title), fontsize=9)
     fig.tight_layout()
     return fig
 

@@ -921,6 +921,24 @@ def test_non_utf8_paths_work_for_map_render_and_show(base, tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
 
 
+def test_non_utf8_names_reach_plot_titles_safely(capsys, base, tmp_path):
+    """coverage's and traj eval --plot's titles name their input; a name that is not UTF-8 is drawn with its odd
+    bytes escaped, not a crash in matplotlib (issue 26). Same for a --titles value show is given."""
+    seq = tmp_path / os.fsdecode(b"seq-\xff")
+    shutil.copytree(base / "seq", seq)
+    code, out, err = run_cli(capsys, ["coverage", seq, base / "gt.npz", "--out", tmp_path / "c"])
+    assert code == 0, err
+    assert (tmp_path / "c" / "coverage.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    est = copied(map_poses(base), tmp_path / os.fsdecode(b"est-\xff.txt"))
+    code, out, err = run_cli(capsys, ["traj", "eval", est, base / "seq" / "poses.txt", "--align", "none", "--plot",
+                                      tmp_path / "t.png"])
+    assert code == 0, err
+    assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code, out, err = run_cli(capsys, ["show", base / "gt.npz", tmp_path / "s.png", "--titles", os.fsdecode(b"gt-\xff"),
+                                      "--width-px", "200"])
+    assert code == 0, err
+
+
 def test_non_utf8_corrupt_frame_is_one_line(base, tmp_path):
     seq = tmp_path / os.fsdecode(b"seq-\xe9")
     shutil.copytree(base / "seq", seq)
