@@ -121,7 +121,7 @@ def run_baseline(cfg: BaselineConfig) -> dict:
     from ..io.grid import read_grid, write_grid
     from ..io.runconfig import CONFIG_NAME, write_run_config
     from ..io.sequence import Sequence, frame_stem
-    from ..mapping.pipeline import sequence_frames
+    from ..mapping.pipeline import map_inputs, sequence_frames
     from .merge import merge_dense
 
     cfg = validate_config(cfg)
@@ -142,9 +142,9 @@ def run_baseline(cfg: BaselineConfig) -> dict:
                             Path(cfg.seq) / "meta.json")
     if len(seq) == 0:
         raise PanovoccError("sequence has no frames", Path(cfg.seq) / "meta.json")
-    check_output(cfg.out, "baseline", cfg.overwrite, inputs=(cfg.seq, cfg.poses, cfg.gt))
-    gt = read_grid(cfg.gt) if cfg.gt is not None else None
     mc = _map_config(cfg, seq)
+    check_output(cfg.out, "baseline", cfg.overwrite, inputs=(*map_inputs(mc), cfg.gt))
+    gt = read_grid(cfg.gt) if cfg.gt is not None else None
     frames = sequence_frames(mc, seq)  # the map's segmenter, built the map's way
     vocab = list(mc.semantic.vocab) if mc.semantic.enabled else []
     seq.check_files(("depth", "rgb") + (("semantic",) if mc.semantic.segmenter == "simulated" else ()))
