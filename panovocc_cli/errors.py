@@ -12,6 +12,12 @@ from pathlib import Path
 EXIT_BAD_INPUT = 2
 
 
+def printable(text: str) -> str:
+    """``text`` with any undecodable path bytes (``os.fsdecode``'s surrogate escapes, a name that is not UTF-8)
+    shown as backslash escapes (``seq-\\xff``): safe to print, write as UTF-8 or draw in a figure title."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 class PanovoccError(Exception):
     """An expected failure: bad input or an impossible request. ``str(err)`` is the one-line message."""
 

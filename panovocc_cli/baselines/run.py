@@ -121,7 +121,7 @@ def run_baseline(cfg: BaselineConfig) -> dict:
     from ..io.grid import read_grid, write_grid
     from ..io.runconfig import CONFIG_NAME, write_run_config
     from ..io.sequence import Sequence, frame_stem
-    from ..mapping.pipeline import sequence_frames
+    from ..mapping.pipeline import map_inputs, sequence_frames
     from .merge import merge_dense
 
     cfg = validate_config(cfg)
@@ -142,9 +142,9 @@ def run_baseline(cfg: BaselineConfig) -> dict:
                             Path(cfg.seq) / "meta.json")
     if len(seq) == 0:
         raise PanovoccError("sequence has no frames", Path(cfg.seq) / "meta.json")
-    check_output(cfg.out, "baseline", cfg.overwrite, inputs=(cfg.seq, cfg.poses, cfg.gt))
-    gt = read_grid(cfg.gt) if cfg.gt is not None else None
     mc = _map_config(cfg, seq)
+    check_output(cfg.out, "baseline", cfg.overwrite, inputs=(*map_inputs(mc), cfg.gt))
+    gt = read_grid(cfg.gt) if cfg.gt is not None else None
     frames = sequence_frames(mc, seq)  # the map's segmenter, built the map's way
     vocab = list(mc.semantic.vocab) if mc.semantic.enabled else []
     seq.check_files(("depth", "rgb") + (("semantic",) if mc.semantic.segmenter == "simulated" else ()))
@@ -270,16 +270,16 @@ def read_prediction(path: Path, class_names=None, voxel_size=None):
 
 def run_merge(cfg: MergeConfig) -> dict:
     """Merge ``cfg.inputs`` by the paper's rule into ``cfg.out``; returns counts."""
-    from ..io.atomic import check_output, output_file
+    from ..io.atomic import output_file
     from ..io.grid import write_grid
     from ..io.replicaocc import parse_class_names
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
     from .merge import merge_dense, merge_sparse
 
     cfg = validate_config(cfg)
     if not cfg.inputs:
         raise PanovoccError("nothing to merge: give one prediction file per view sequence")
-    check_output(cfg.out, "grid", cfg.overwrite, inputs=cfg.inputs, folder=False)
+    config_path = check_file_output(cfg.out, "grid", cfg.overwrite, inputs=cfg.inputs)
     names = parse_class_names(cfg.class_names) if cfg.class_names else None
     read = [(Path(p), *read_prediction(Path(p), names, cfg.voxel_size)) for p in cfg.inputs]
     kinds = {k for _, k, _ in read}
@@ -297,7 +297,7 @@ def run_merge(cfg: MergeConfig) -> dict:
     grid = merge_dense(items) if kind == "dense" else merge_sparse(items)
     with output_file(cfg.out):
         write_grid(cfg.out, grid)
-        write_run_config(config_path_beside(cfg.out), cfg)
+        write_run_config(config_path, cfg)
     occ = (grid.labels != 0) & (grid.labels != 255)
     return {"inputs": len(items), "kind": kind, "occupied": int(occ.sum()),
             "classed": int((occ & (grid.labels < 254)).sum()), "shape": list(grid.labels.shape), "out": str(cfg.out)}

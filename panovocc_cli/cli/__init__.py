@@ -17,6 +17,7 @@ except ImportError:  # pragma: no cover
     import click
 
 from ..errors import EXIT_BAD_INPUT, PanovoccError
+from ..errors import printable as _printable
 from ._app import app
 
 # Importing a module registers its commands on ``app``, in the order --help lists them. They are
@@ -43,9 +44,14 @@ def version() -> None:
     typer.echo(__version__)
 
 
-def _printable(text: str) -> str:
-    """A message with any undecodable path bytes (surrogate escapes) shown as backslash escapes, never an encoding error."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+def _end_progress_bars() -> None:
+    """Close the progress bars a failed command left open (a bar driven from a generator is closed only when it is
+    collected), so that the error line starts a line of its own instead of trailing the bar."""
+    tqdm_module = sys.modules.get("tqdm")
+    if tqdm_module is None:
+        return
+    for bar in list(getattr(tqdm_module.tqdm, "_instances", ())):
+        bar.close()
 
 
 def load_commands(argv: list[str] | None = None) -> typer.Typer:
@@ -87,8 +93,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="panovocc")
     except PanovoccError as e:
+        _end_progress_bars()
         print(f"error: {_printable(str(e))}", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
+    except click.exceptions.UsageError as e:  # Typer's three lines (Usage / Try / Error) as one, like the rest
+        where = e.ctx.command_path if e.ctx is not None else "panovocc"
+        message = " ".join(line.strip() for line in e.format_message().splitlines() if line.strip())
+        print(_printable(f"error: {message} (see {where} -h)"), file=sys.stderr)
+        sys.exit(e.exit_code)
     except click.exceptions.ClickException as e:
         e.show()
         sys.exit(e.exit_code)
@@ -96,11 +108,13 @@ def main(argv: list[str] | None = None) -> int:
         print("aborted", file=sys.stderr)
         sys.exit(130)
     except OSError as e:  # disk full, read-only file system, a path the OS refuses: one line naming it
+        _end_progress_bars()
         where = e.filename if e.filename is not None else "?"
         print(_printable(f"error: {os.fsdecode(where) if isinstance(where, bytes) else where}: {e.strerror or e}"),
               file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
     except KeyboardInterrupt:
+        _end_progress_bars()
         print("interrupted", file=sys.stderr)
         sys.exit(130)
     sys.exit(rv if isinstance(rv, int) else 0)

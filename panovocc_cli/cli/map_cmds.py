@@ -41,7 +41,7 @@ def map_cmd(
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
     (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
-    live = _live_log(rerun, rerun_connect, rerun_url, rerun_every, overwrite)
+    live = _live_log(rerun, rerun_connect, rerun_url, rerun_every, overwrite, o)
     try:
         summary = _map(o, config, resume, overwrite, quiet, live)
         if live is not None:
@@ -54,20 +54,22 @@ def map_cmd(
         typer.echo(f"live log -> {rerun} (open it with: rerun {rerun})")
 
 
-def _live_log(rrd, connect: bool, url, every: int, overwrite: bool):
+def _live_log(rrd, connect: bool, url, every: int, overwrite: bool, o: OptionValues):
     """The Rerun live log of ``map --rerun`` / ``--rerun-connect`` (None without either); the .rrd path is
-    checked here, before the run."""
+    checked here, before the run, against the map's inputs and its other outputs (``o``: the command's values)."""
     if url is not None and not connect:
         raise PanovoccError("--rerun-url is the viewer address of --rerun-connect; give --rerun-connect too")
     if rrd is None and not connect:
         return None
     if rrd is not None and connect:
         raise PanovoccError("give --rerun FILE.rrd or --rerun-connect, not both")
-    from ..io.atomic import check_output
+    from ..io.atomic import check_outputs
     from ..viz.live import LiveLog
 
     if rrd is not None:
-        check_output(rrd, "recording", overwrite, folder=False)
+        inputs = [o[k] for k in ("seq", "poses", "poses_reference") if o.get(k) not in (None, POSES_SLAM)]
+        check_outputs([(o.get("out"), "map", True), (o.get("frame_times"), "frame times", False),
+                       (rrd, "recording", False)], overwrite, inputs=inputs)
     return LiveLog(rrd=rrd, connect=(url or "") if connect else None, every=every)
 
 

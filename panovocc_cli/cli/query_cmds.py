@@ -14,7 +14,7 @@ from pathlib import Path
 import typer
 
 from ..config import option, validate_config
-from ..errors import PanovoccError
+from ..errors import PanovoccError, printable
 from ..semantics.query import (DEFAULT_MARGIN, DEFAULT_MIN_SIMILARITY, DEFAULT_RELABEL_SIMILARITY,
                                DEFAULT_TEMPERATURE, TEXT_MODEL)
 from ._app import app
@@ -90,7 +90,7 @@ def run_query(cfg: QueryConfig, encode=None) -> dict:
     weights), ``voxels`` (matching voxels), ``clusters`` (the best ``top``, :meth:`Cluster.to_json`) and
     ``best_voxels`` (up to 20 centres in metres with their scores), ``seconds``
     """
-    from ..io.atomic import check_output
+    from ..io.runconfig import check_file_output
     from ..semantics.query import class_distribution, find_clusters, match_classes, minilm_encoder, voxel_scores
 
     t0 = time.perf_counter()
@@ -98,7 +98,7 @@ def run_query(cfg: QueryConfig, encode=None) -> dict:
     if cfg.out is not None:
         if Path(cfg.out).suffix.lower() not in QUERY_OUTPUTS:
             raise PanovoccError(f"--out must end in {', '.join(QUERY_OUTPUTS)}", cfg.out)
-        check_output(cfg.out, "query", cfg.overwrite, inputs=[cfg.map_dir], folder=False)
+        check_file_output(cfg.out, "query", cfg.overwrite, inputs=[cfg.map_dir])
     mapper = _load_map(cfg.map_dir)
     try:
         vocab = list(mapper.config.vocab)
@@ -190,7 +190,7 @@ def _top_view(pts, cols, mask, clusters, result, h):
         ax.add_patch(Rectangle((bx0, by0), bx1 - bx0, by1 - by0, fill=False, edgecolor="black", linewidth=1.5))
         ax.text(bx0, by1, f" {k}", va="bottom", ha="left", fontsize=11, weight="bold")
     matched = ", ".join(f"{m['class']} {m['similarity']:.2f}" for m in result["match"]["matched"]) or "no class"
-    ax.set_title(f"\"{result['query']}\" -> {matched} (top view, boxes: best clusters)", fontsize=11)
+    ax.set_title(printable(f"\"{result['query']}\" -> {matched} (top view, boxes: best clusters)"), fontsize=11)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     fig.tight_layout()
@@ -209,16 +209,16 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     import numpy as np
 
     from ..classes import canonical_name
-    from ..io.atomic import check_output, output_file
+    from ..io.atomic import output_file
     from ..io.grid import write_grid
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
     from ..mapping.export import export_memory
     from ..semantics.query import minilm_encoder, parse_relabel_vocab, relabel_matrix
 
     cfg = validate_config(cfg)
     if Path(cfg.out_npz).suffix.lower() != ".npz":
         raise PanovoccError("output must be a .npz grid", cfg.out_npz)
-    check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=[cfg.map_dir], folder=False)
+    config_path = check_file_output(cfg.out_npz, "grid", cfg.overwrite, inputs=[cfg.map_dir])
     new = parse_relabel_vocab(cfg.vocab)
     mapper = _load_map(cfg.map_dir)
     try:
@@ -241,7 +241,7 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
         mapper.close()
     with output_file(cfg.out_npz):
         write_grid(cfg.out_npz, ex.grid)
-    write_run_config(config_path_beside(cfg.out_npz), cfg)
+    write_run_config(config_path, cfg)
     counts = np.bincount(ex.labels[ex.labels >= 0], minlength=len(words)) if ex.labels is not None else np.zeros(len(words))
     return {"vocab": words, "sources": {w: [[s, c] for s, c in v] for w, v in sources.items()},
             "classed": {w: int(n) for w, n in zip(words, counts)}, "occupied": int(len(ex.occupied_keys))}

@@ -81,7 +81,7 @@ def run_convert_s2d3ds(cfg: ConvertS2d3dsConfig) -> dict:
     cfg = validate_config(cfg)
     if cfg.pano_yaw_deg not in PANO_YAWS_DEG:
         raise PanovoccError(f"--pano-yaw-deg must be one of {', '.join(map(str, PANO_YAWS_DEG))}, got {cfg.pano_yaw_deg}")
-    check_output(cfg.out, "sequence", cfg.overwrite, inputs=(cfg.area,))
+    check_output(cfg.out, "sequence", cfg.overwrite, inputs=(cfg.area, cfg.labels_json))
     semantic = cfg.semantic and (Path(cfg.area) / "pano" / "semantic").is_dir()
     area = read_area(cfg.area, ("rgb", "depth", "pose") + (("semantic",) if semantic else ()))
     keys = area.keys

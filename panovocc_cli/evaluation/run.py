@@ -24,7 +24,7 @@ from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTU
 from ..errors import PanovoccError
 from ..io.atomic import check_output, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
-from ..io.runconfig import config_path_beside, write_run_config
+from ..io.runconfig import check_file_output, write_run_config
 from ..io.tables import write_csv
 from ..io.tables import write_tables as write_table_files
 from .metrics import HEADLINE_MASK, MASK_LABELS, MASKS, Result, evaluate, resolve_classes
@@ -266,29 +266,19 @@ def run_show(cfg: ShowConfig) -> tuple[int, int]:
         raise PanovoccError("no grids to show")
     if cfg.titles is not None and len(cfg.titles) != len(cfg.grids):
         raise PanovoccError(f"{len(cfg.titles)} titles for {len(cfg.grids)} grids")
-    check_output(cfg.out_png, "picture", cfg.overwrite, inputs=cfg.grids, folder=False)
+    config_path = check_file_output(cfg.out_png, "picture", cfg.overwrite, inputs=cfg.grids)
     if cfg.out_png.suffix.lower() != ".png":
         raise PanovoccError("output must be a .png file", cfg.out_png)
-    _not_an_input(cfg.out_png, cfg.grids)
     grids = [read_grid(p) for p in cfg.grids]
     images, legend = render_panels(grids, cfg.cut_top, panel_px=max(64, cfg.width_px // len(grids)))
     fig, size = panels_figure(images, legend, cfg.titles, cfg.width_px)
     with output_file(cfg.out_png):
         write_png(fig, cfg.out_png)
-    write_config(config_path_beside(cfg.out_png), cfg)
+    write_config(config_path, cfg)
     return size
 
 
 # -------------------------------------------------------------------------------------- convert
-def _not_an_input(out: Path, inputs) -> None:
-    """Refuse an output path that is one of the command's inputs (it would be overwritten)."""
-    import os
-
-    for p in inputs:
-        if p is not None and os.path.abspath(p) == os.path.abspath(out):
-            raise PanovoccError(f"output would overwrite the input {p}; choose another output path", out)
-
-
 @dataclass
 class ConvertReplicaOccConfig:
     """Options of ``panovocc convert replicaocc``.
@@ -329,7 +319,6 @@ def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
     cfg = validate_config(cfg)
     names_file = Path(cfg.class_names) if cfg.class_names and "," not in cfg.class_names else None
     check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=(cfg.pkl, names_file), folder=False)
-    _not_an_input(cfg.out_npz, [cfg.pkl])
     names = parse_class_names(cfg.class_names) if cfg.class_names else None
     data = load_pickle(cfg.pkl)
     grid, shift = replicaocc_to_grid(data, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift, cfg.pkl)
@@ -375,7 +364,6 @@ def run_convert_to_replicaocc(cfg: ConvertToReplicaOccConfig):
 
     cfg = validate_config(cfg)
     check_output(cfg.out_pkl, "pickle", cfg.overwrite, inputs=(cfg.grid, cfg.like), folder=False)
-    _not_an_input(cfg.out_pkl, [cfg.grid, cfg.like])
     grid = read_grid(cfg.grid)
     if cfg.like is not None:
         ref = read_grid(cfg.like)

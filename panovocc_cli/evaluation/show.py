@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from ..classes import DEFAULT_VOCAB, canonical_name, class_color
-from ..errors import PanovoccError
+from ..errors import PanovoccError, printable
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from .align import check_same_voxel_size
 from .render_grid import NO_CLASS_COLOR, drawing_box, render_voxels
@@ -102,7 +102,8 @@ def panels_figure(images: Sequence[np.ndarray], legend: Sequence[str], titles: S
         ax.imshow(img, interpolation="antialiased")
         ax.set_axis_off()
         if titles:
-            fig.text((i + 0.5) / n, 1.0 - 6 / height_px, str(titles[i]), ha="center", va="top", fontsize=13)
+            fig.text((i + 0.5) / n, 1.0 - 6 / height_px, printable(str(titles[i])), ha="center", va="top",
+                     fontsize=13)
     if legend:
         handles = [Patch(facecolor=_legend_color(c), edgecolor="0.3", label=c) for c in legend]
         fig.legend(handles=handles, loc="lower center", ncol=ncol, frameon=False, fontsize=10,
@@ -147,7 +148,7 @@ def coverage_figure(frames: np.ndarray, panoramic: np.ndarray, perspective: np.n
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     if title:
-        ax.set_title(title)
+        ax.set_title(printable(title))
     fig.tight_layout()
     return fig
 
@@ -237,7 +238,7 @@ def floor_plans_figure(grid: Grid, T_world_cam: np.ndarray, title: str | None = 
         ax.set_title(f"floor {f} (z = {floor_z[f]:.2f} m): frames {idx[0] if len(idx) else '-'}"
                      f"-{idx[-1] if len(idx) else '-'}", fontsize=10, loc="left")
     if title:
-        fig.text(0.5, 1.0 - 8 / height_px, title, ha="center", va="top", fontsize=13)
+        fig.text(0.5, 1.0 - 8 / height_px, printable(title), ha="center", va="top", fontsize=13)
     sm = plt.cm.ScalarMappable(norm=norm, cmap="viridis")
     cax = fig.add_axes((0.05, 18 / height_px, 0.25, 12 / height_px))
     fig.colorbar(sm, cax=cax, orientation="horizontal").set_label("frame", fontsize=9)

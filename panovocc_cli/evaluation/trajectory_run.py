@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import DEFAULT_SEED, MATCH_MAX_DIFF, option, validate_config
-from ..errors import PanovoccError
+from ..errors import PanovoccError, printable
 from .trajectory import ALIGNMENTS, TrajectoryResult, evaluate_trajectory
 
 
@@ -113,21 +113,22 @@ def trajectory_figure(T_ref: np.ndarray, T_est_aligned: np.ndarray, title: str):
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, lw=0.3)
     ax.legend(loc="best", fontsize=8)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(printable(title), fontsize=9)
     fig.tight_layout()
     return fig
 
 
 def run_traj_eval(cfg: TrajEvalConfig, overwrite: bool = False) -> TrajectoryResult:
     """Evaluate ``cfg.est`` against ``cfg.gt``; write ``cfg.plot`` (+ its config) and ``cfg.json_path`` if asked."""
-    from ..io.atomic import check_output, write_text
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.atomic import check_outputs, write_text
+    from ..io.runconfig import check_file_output, write_run_config
 
     cfg = validate_config(cfg)
-    for p in (cfg.plot, cfg.json_path):
-        if p is not None:
-            check_output(p, "trajectory figure" if p == cfg.plot else "trajectory scores", overwrite,
-                         inputs=(cfg.est, cfg.gt), folder=False)
+    scores = [(cfg.json_path, "trajectory scores", False)]
+    if cfg.plot is not None:  # the figure, its config beside, the scores: three outputs at three paths
+        config_path = check_file_output(cfg.plot, "trajectory figure", overwrite, inputs=(cfg.est, cfg.gt), also=scores)
+    else:
+        check_outputs(scores, overwrite, inputs=(cfg.est, cfg.gt))
     res, T_ref = evaluate_files(cfg.est, cfg.gt, cfg.align, cfg.delta, cfg.max_diff)
     if cfg.json_path is not None:
         d = {"est": cfg.est, "gt": cfg.gt} | res.summary()
@@ -138,7 +139,7 @@ def run_traj_eval(cfg: TrajEvalConfig, overwrite: bool = False) -> TrajectoryRes
         title = (f"{Path(cfg.est).name} vs {Path(cfg.gt).name}: ATE RMSE {res.ate['rmse']:.3f} m "
                  f"({cfg.align}), RPE {res.rpe_trans['rmse']:.3f} m / {res.rpe_rot_deg['rmse']:.2f} deg")
         write_png(trajectory_figure(T_ref, res.T_est_aligned, title), cfg.plot)
-        write_run_config(config_path_beside(cfg.plot), cfg)
+        write_run_config(config_path, cfg)
     return res
 
 
@@ -146,12 +147,11 @@ def run_traj_perturb(cfg: TrajPerturbConfig, overwrite: bool = False) -> dict:
     """Write a perturbed copy of ``cfg.gt`` (drift, then jitter) to ``cfg.out`` and its config beside
     (``OUT.config.json``)."""
     from ..geometry.drift import drift_trajectory, jitter_trajectory
-    from ..io.atomic import check_output
     from ..io.poses import read_trajectory, write_poses, write_tum
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
 
     cfg = validate_config(cfg)
-    check_output(cfg.out, "trajectory", overwrite, inputs=(cfg.gt,), folder=False)
+    config_path = check_file_output(cfg.out, "trajectory", overwrite, inputs=(cfg.gt,))
     t, T, _ = read_trajectory(cfg.gt)
     D = drift_trajectory(T, trans_m_per_sqrt_frame=cfg.drift, trans_m_per_m=cfg.drift_per_m,
                          rot_deg_per_frame=cfg.rot_drift_deg, seed=cfg.seed)
@@ -160,6 +160,6 @@ def run_traj_perturb(cfg: TrajPerturbConfig, overwrite: bool = False) -> dict:
         write_tum(cfg.out, D, timestamps=t)
     else:
         write_poses(cfg.out, D)
-    write_run_config(config_path_beside(cfg.out), cfg)
+    write_run_config(config_path, cfg)
     end = float(np.linalg.norm(D[-1, :3, 3] - T[-1, :3, 3]))
     return {"poses": len(D), "end_error_m": end, "out": str(cfg.out)}

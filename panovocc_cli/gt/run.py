@@ -39,16 +39,15 @@ def run_gt(cfg: GtConfig) -> dict:
 def run_mesh_gt(cfg: GtConfig) -> dict:
     """Voxelise ``cfg.scene`` and write the grid ``.npz``; returns a summary dict."""
     from ..datasets.replica import read_replica_scene, scene_files
-    from ..io.atomic import check_output
     from ..io.grid import write_grid
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
     from .mesh import voxelize_scene
 
-    check_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.scene, *scene_files(cfg.scene)), folder=False)
+    config_path = check_file_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.scene, *scene_files(cfg.scene)))
     scene = read_replica_scene(cfg.scene)
     grid = voxelize_scene(scene, cfg.voxel_size)
     write_grid(cfg.out, grid)
-    write_run_config(config_path_beside(cfg.out), cfg)
+    write_run_config(config_path, cfg)
     occ = (grid.labels > 0) & (grid.labels < 255)
     return {"shape": tuple(int(s) for s in grid.labels.shape), "occupied": int(occ.sum()),
             "classes": len(grid.class_names), "voxel_size": grid.voxel_size}
@@ -137,17 +136,15 @@ def lift_sequence(seq, voxel_size: float, lift, progress: bool = False):
 
 def run_lifted_gt(cfg: GtConfig) -> dict:
     """Lift ``cfg.from_sequence`` (docs/gt.md) and write the grid ``.npz`` + ``OUT.config.json``."""
-    from ..io.atomic import check_output
     from ..io.grid import write_grid
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
     from ..io.sequence import Sequence
 
     seq_root = Path(cfg.from_sequence)
-    check_output(cfg.out, "grid", cfg.overwrite, inputs=(seq_root, seq_root / "poses.txt", seq_root / "meta.json"),
-                 folder=False)
+    config_path = check_file_output(cfg.out, "grid", cfg.overwrite, inputs=(seq_root,))
     seq = Sequence(seq_root)
     grid, stats = lift_sequence(seq, cfg.voxel_size, cfg.lift, progress=cfg.progress)
     write_grid(cfg.out, grid)
-    write_run_config(config_path_beside(cfg.out), cfg)
+    write_run_config(config_path, cfg)
     return {"shape": tuple(int(s) for s in grid.labels.shape), "classes": len(grid.class_names),
             "voxel_size": grid.voxel_size, **stats}

@@ -74,13 +74,12 @@ def run_s2d3ds_gt(cfg: S2d3dsGtConfig) -> dict:
     from tqdm import tqdm
 
     from ..classes import canonical_name
-    from ..io.atomic import check_output
     from ..io.grid import write_grid
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
     from ..io.s2d3ds import CLASS_MAP, S2D3DS_CLASSES, annotation_class, list_annotations, read_annotation
 
     cfg = validate_config(cfg)
-    check_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.annotations,), folder=False)
+    config_path = check_file_output(cfg.out, "grid", cfg.overwrite, inputs=(cfg.annotations,))
     files = list_annotations(cfg.annotations)
     if cfg.rooms:
         want = {r.strip() for r in cfg.rooms.split(",") if r.strip()}
@@ -103,7 +102,7 @@ def run_s2d3ds_gt(cfg: S2d3dsGtConfig) -> dict:
             counts.append(voxel_counts(pts, ids.get(CLASS_MAP.get(cls, cls), 0), cfg.voxel_size))
     grid = points_to_grid(counts, names, cfg.voxel_size)
     write_grid(cfg.out, grid)
-    write_run_config(config_path_beside(cfg.out), cfg)
+    write_run_config(config_path, cfg)
     hist = np.bincount(grid.labels.ravel(), minlength=256)
     return {"points": points, "skipped_lines": skipped, "rooms": len({r for r, _ in files}),
             "occupied": int(hist[1:255].sum()), "classes": {n: int(hist[k]) for k, n in enumerate(names) if k and hist[k]},

@@ -174,8 +174,32 @@ OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
 IGNORED_IN_EMPTY = (".lock",)
 
 
+#: Output folders whose files other commands read as data (a map's memory.npz, a sequence's frames): a file
+#: output never replaces one of their files, even with --overwrite (a new file beside them is fine).
+DATA_KINDS = ("scene", "sequence", "map", "views", "baseline")
+
+
 def _resolved(p: str | Path) -> Path:
-    return Path(os.path.abspath(os.fspath(p)))
+    """``p`` absolute with every symbolic link resolved (for a path that does not exist yet, its existing part):
+    an output reached through a link is compared with the inputs where it really lies."""
+    return Path(os.path.realpath(os.fspath(p)))
+
+
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two existing paths are one file (hard links, bind mounts); False when either is missing."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def _data_owner(path: Path) -> tuple[str, Path] | None:
+    """The nearest folder above ``path`` (resolved) that is a panovocc output of a :data:`DATA_KINDS` kind."""
+    for folder in _resolved(path).parents:
+        for kind in DATA_KINDS:
+            if is_output_of_kind(folder, kind):
+                return kind, folder
+    return None
 
 
 def _is_within(inner: Path, outer: Path) -> bool:
@@ -207,8 +231,11 @@ def check_output(path: str | Path, kind: str, overwrite: bool = False, inputs=()
 
     Rules (README, "Behaviour you can rely on"):
 
-    - an output never equals an input, and a folder output never contains one (replacing it would
-      delete the input), with or without ``--overwrite``;
+    - an output never is an input, never lies inside a folder input and, as a folder, never holds an input
+      (replacing it would delete the input), with or without ``--overwrite``; paths are compared with their
+      symbolic links resolved, and an existing output that is the same file as an input (a hard link) is refused;
+    - a file output never replaces a file of a panovocc output folder that other commands read
+      (:data:`DATA_KINDS`: a scene, a sequence, a map, views, a baseline), even with ``--overwrite``;
     - a folder output may be missing or an empty folder; an existing non-empty folder is refused unless
       ``overwrite``, and even then only a panovocc output of the same ``kind`` (its marker file, see
       :data:`OUTPUT_MARKERS`) is replaced: any other folder is left alone;
@@ -233,8 +260,10 @@ def check_output(path: str | Path, kind: str, overwrite: bool = False, inputs=()
         if inp is None:
             continue
         src = _resolved(inp)
-        if out == src or (folder and _is_within(src, out)):
+        if out == src or (folder and _is_within(src, out)) or _same_file(path, inp):
             raise PanovoccError(f"output would overwrite the input {inp}; choose another output path", path)
+        if _is_within(out, src):
+            raise PanovoccError(f"output lies inside the input {inp}; choose an output path outside it", path)
     if not (path.exists() or path.is_symlink()):
         return
     if folder:
@@ -254,8 +283,36 @@ def check_output(path: str | Path, kind: str, overwrite: bool = False, inputs=()
     else:
         if path.is_dir():
             raise PanovoccError(f"is a folder; expected a {kind} file path", path)
+        owner = _data_owner(path) if overwrite else None
+        if owner is not None:
+            raise PanovoccError(f"is a file of the panovocc {owner[0]} {owner[1]}; refusing to replace it even with "
+                                "--overwrite: choose an output path outside it", path)
         if not overwrite:
             raise PanovoccError("already exists (pass --overwrite to replace it)", path)
+
+
+def check_outputs(outputs, overwrite: bool = False, inputs=()) -> None:
+    """:func:`check_output` on every output of a command that writes several, and refuse two at one path.
+
+    Parameters
+    ----------
+    outputs : (path, kind, folder) triples; a None path is skipped
+    overwrite, inputs : as for :func:`check_output`
+
+    Raises
+    ------
+    PanovoccError naming the output given twice (exit status 2).
+    """
+    seen: dict[Path, str] = {}
+    for path, kind, folder in outputs:
+        if path is None:
+            continue
+        key = _resolved(path)
+        if key in seen:
+            raise PanovoccError(f"given as two outputs ({seen[key]} and {kind}); one would replace the other: choose "
+                                "different paths", path)
+        seen[key] = kind
+        check_output(path, kind, overwrite, inputs=inputs, folder=folder)
 
 
 def clean_temporaries(folder: str | Path, names=()) -> list[Path]:

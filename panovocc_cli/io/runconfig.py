@@ -19,7 +19,7 @@ from dataclasses import asdict, is_dataclass
 from pathlib import Path
 from typing import Any
 
-from .atomic import write_text
+from .atomic import check_outputs, write_text
 
 CONFIG_NAME = "config.json"
 RUNTIME_ONLY = ("progress", "overwrite", "quiet")  # fields that change no output byte
@@ -52,6 +52,19 @@ def config_path_beside(output_file: str | Path) -> Path:
     """Where a one-file stage's config goes: ``OUT.config.json`` beside ``OUT.ext``."""
     p = Path(output_file)
     return p.with_name(p.stem + "." + CONFIG_NAME)
+
+
+def check_file_output(out: str | Path, kind: str, overwrite: bool = False, inputs=(), also=()) -> Path:
+    """Check a one-file stage's output ``out`` and its ``OUT.config.json`` by one rule, before anything is written.
+
+    The config beside follows the rule of the output it describes (io/atomic.check_output): an existing one is
+    replaced only with ``overwrite``, never an input. ``also`` lists the stage's other outputs as (path, kind,
+    folder) triples; no two outputs may share a path (io/atomic.check_outputs). Returns the config's path (write it
+    with :func:`write_run_config` once the output is written).
+    """
+    side = config_path_beside(out)
+    check_outputs([(out, kind, False), (side, "run config", False), *also], overwrite, inputs=inputs)
+    return side
 
 
 def write_run_config(path: str | Path, cfg: Any) -> Path:

@@ -34,7 +34,7 @@ from ..config import validate_config
 from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
-from ..io.atomic import check_output, clean_temporaries, write_text
+from ..io.atomic import check_outputs, clean_temporaries, write_text
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_poses, write_poses
@@ -348,6 +348,16 @@ def _remove_unless_started(out: Path) -> None:
         shutil.rmtree(out, ignore_errors=True)
 
 
+def map_inputs(cfg: MapConfig) -> tuple:
+    """The paths a map run reads (no output may be one or lie inside one): the sequence, the pose file and the
+    reference of --poses-align, a precomputed:DIR segmenter's folder (None entries where not used)."""
+    from ..semantics.registry import PRECOMPUTED
+
+    seg = cfg.semantic.segmenter
+    return (cfg.seq, None if cfg.poses == POSES_SLAM else cfg.poses, cfg.poses_reference,
+            seg[len(PRECOMPUTED):] if seg.startswith(PRECOMPUTED) else None)
+
+
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
             progress: bool = True, stop_after: int | None = None, pose_source=None, observer=None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
@@ -413,15 +423,12 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
-        if cfg.frame_times is not None and Path(cfg.frame_times).exists() and not overwrite:
-            raise PanovoccError("already exists (use --overwrite to replace it)", cfg.frame_times)
         seq = _open_sequence(cfg)
         cfg = resolve_origin(resolve(cfg, seq.meta.width), seq.poses)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
         frames = sequence_frames(cfg, seq)  # builds the segmenter: fails before any file is written
         out = Path(cfg.out)
-        check_output(out, "map", overwrite, inputs=(cfg.seq, None if cfg.poses == POSES_SLAM else cfg.poses,
-                                                    cfg.poses_reference))
+        check_outputs([(out, "map", True), (cfg.frame_times, "frame times", False)], overwrite, inputs=map_inputs(cfg))
         _check_inputs(cfg, seq)  # every frame present with the right size and type, before the first write
         if not (out.exists() or out.is_symlink()):  # a run that fails before config.json leaves nothing behind
             held.callback(_remove_unless_started, out)

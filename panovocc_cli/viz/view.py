@@ -98,9 +98,9 @@ def run_view(cfg: ViewConfig, spawn: bool | None = None, progress: bool = False)
     """
     from tqdm import tqdm
 
-    from ..io.atomic import atomic_path, check_output
+    from ..io.atomic import atomic_path
     from ..io.grid import read_grid
-    from ..io.runconfig import config_path_beside, write_run_config
+    from ..io.runconfig import check_file_output, write_run_config
     from . import rerun_log as rl
 
     cfg = validate_config(cfg)
@@ -113,7 +113,7 @@ def run_view(cfg: ViewConfig, spawn: bool | None = None, progress: bool = False)
     if out is not None:
         if out.suffix != ".rrd":
             raise PanovoccError("expected a .rrd file name (Rerun's recording format)", out)
-        check_output(out, "recording", cfg.overwrite, inputs=(cfg.map,), folder=False)
+        config_path = check_file_output(out, "recording", cfg.overwrite, inputs=(cfg.map, cfg.gt))
     seq = None
     note = ""
     if not cfg.no_images and len(poses):
@@ -162,5 +162,5 @@ def run_view(cfg: ViewConfig, spawn: bool | None = None, progress: bool = False)
         finally:
             rec.flush()
             rec.disconnect()
-    write_run_config(config_path_beside(out), cfg)
+    write_run_config(config_path, cfg)
     return summary

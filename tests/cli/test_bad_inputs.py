@@ -201,6 +201,17 @@ def precomputed(b: Path, t: Path, frames=(0, 1, 2, 3), bad: bytes | None = None)
     return d
 
 
+def link(path: Path, target: Path) -> Path:
+    """A symbolic link ``path`` -> ``target``."""
+    path.symlink_to(target)
+    return path
+
+
+def copied(src: Path, dst: Path) -> Path:
+    shutil.copyfile(src, dst)
+    return dst
+
+
 def pkl(t: Path, obj) -> Path:
     p = t / "in.pkl"
     with open(p, "wb") as f:
@@ -329,25 +340,113 @@ CASES = [
     C("exists", "demo-overwrite-foreign",
       lambda b, t: ["demo", nonempty(t), "--frames", "2", "--width", "64", "--overwrite"], "not a panovocc demo"),
     # --- never write over an input, even with --overwrite
-    C("input", "render-scene-onto-itself", lambda b, t: ["render", scene_copy(b, t), t / "scene"], "input"),
+    C("input", "render-scene-onto-itself", lambda b, t: ["render", scene_copy(b, t), t / "scene"], "the input"),
     C("input", "render-scene-onto-itself-overwrite",
-      lambda b, t: ["render", scene_copy(b, t), t / "scene", "--overwrite"], "input"),
+      lambda b, t: ["render", scene_copy(b, t), t / "scene", "--overwrite"], "the input"),
     C("input", "render-onto-parent-of-scene",
-      lambda b, t: ["render", scene_copy(b, t), t, "--overwrite"], "input"),
+      lambda b, t: ["render", scene_copy(b, t), t, "--overwrite"], "the input"),
     C("input", "render-traj-inside-output",
-      lambda b, t: ["render", b / "scene", seq_copy(b, t), "--traj", t / "seq" / "poses.txt", "--overwrite"], "input"),
+      lambda b, t: ["render", b / "scene", seq_copy(b, t), "--traj", t / "seq" / "poses.txt", "--overwrite"], "the input"),
     C("input", "gt-onto-mesh",
-      lambda b, t: ["gt", scene_copy(b, t), t / "scene" / "habitat" / "mesh_semantic.ply", "--overwrite"], "input"),
-    C("input", "map-onto-seq", lambda b, t: ["map", seq_copy(b, t), t / "seq", "--overwrite", *Q], "input"),
+      lambda b, t: ["gt", scene_copy(b, t), t / "scene" / "habitat" / "mesh_semantic.ply", "--overwrite"], "the input"),
+    C("input", "map-onto-seq", lambda b, t: ["map", seq_copy(b, t), t / "seq", "--overwrite", *Q], "the input"),
     C("input", "show-onto-grid",
       lambda b, t: ["show", (shutil.copy(b / "gt.npz", t / "g.png"), t / "g.png")[1], t / "g.png", "--overwrite"],
-      "input"),
+      "the input"),
     C("input", "to-replicaocc-onto-grid",
       lambda b, t: ["convert", "to-replicaocc", (shutil.copy(b / "gt.npz", t / "g.npz"), t / "g.npz")[1],
-                    t / "g.npz", "--overwrite"], "input"),
+                    t / "g.npz", "--overwrite"], "the input"),
     C("input", "eval-out-holds-pred",
       lambda b, t: ["eval", (write(t / "e" / "scores.json", "{}"), shutil.copy(b / "pred.npz", t / "e" / "p.npz"),
-                             t / "e" / "p.npz")[2], b / "gt.npz", "--out", t / "e", "--overwrite"], "input"),
+                             t / "e" / "p.npz")[2], b / "gt.npz", "--out", t / "e", "--overwrite"], "the input"),
+    # --- an output is never an input, never inside a folder input, not even through a link; a file output never
+    # replaces a file of a map, sequence or scene (issue 26): every writing command
+    C("input", "relabel-onto-map-memory", lambda b, t: ["relabel", map_copy(b, t), t / "map" / "memory.npz", "--vocab",
+                                                        "bed,sofa", "--overwrite"], "the input"),
+    C("input", "query-out-onto-map-config", lambda b, t: ["query", map_copy(b, t), "bed", "--out",
+                                                          t / "map" / "config.json", "--overwrite"], "the input"),
+    C("input", "query-out-onto-map-ply", lambda b, t: ["query", map_copy(b, t), "bed", "--out", t / "map" / "map.ply",
+                                                       "--overwrite"], "the input"),
+    C("input", "convert-onto-map-memory", lambda b, t: ["convert", "replicaocc", b / "in.pkl",
+                                                        map_copy(b, t) / "memory.npz", "--overwrite"], "panovocc map"),
+    C("input", "to-replicaocc-onto-map-memory",
+      lambda b, t: ["convert", "to-replicaocc", map_copy(b, t) / "prediction.npz", t / "map" / "memory.npz",
+                    "--overwrite"], "panovocc map"),
+    C("input", "gt-lift-onto-frame", lambda b, t: ["gt", "--from-sequence", seq_copy(b, t),
+                                                   t / "seq" / "depth" / "000000.png", "--overwrite", "--quiet"],
+      "the input"),
+    C("input", "gt-inside-scene", lambda b, t: ["gt", scene_copy(b, t), t / "scene" / "g.npz"], "the input"),
+    C("input", "merge-out-links-to-input",
+      lambda b, t: ["baselines", "merge", link(t / "m.npz", copied(b / "pred.npz", t / "p.npz")), t / "p.npz",
+                    "--overwrite"], "the input"),
+    C("input", "show-out-links-to-grid",
+      lambda b, t: ["show", copied(b / "gt.npz", t / "g.npz"), link(t / "p.png", t / "g.npz"), "--overwrite"],
+      "the input"),
+    C("input", "perturb-out-links-to-input",
+      lambda b, t: ["traj", "perturb", copied(b / "seq" / "poses.txt", t / "p.txt"), link(t / "o.txt", t / "p.txt"),
+                    "--overwrite"], "the input"),
+    C("input", "render-inside-scene", lambda b, t: ["render", scene_copy(b, t), t / "scene" / "seq"], "the input"),
+    C("input", "views-inside-seq", lambda b, t: ["views", seq_copy(b, t), t / "seq" / "v"], "the input"),
+    C("input", "map-inside-seq", lambda b, t: ["map", seq_copy(b, t), t / "seq" / "m", *Q], "the input"),
+    C("input", "map-rerun-inside-seq", lambda b, t: ["map", seq_copy(b, t), t / "m", "--rerun", t / "seq" / "r.rrd",
+                                                     *Q], "the input"),
+    C("input", "map-frame-times-onto-poses",
+      lambda b, t: ["map", seq_copy(b, t), t / "m", "--frame-times", t / "seq" / "poses.txt", "--overwrite", *Q],
+      "the input"),
+    C("input", "coverage-inside-seq", lambda b, t: ["coverage", seq_copy(b, t), b / "gt.npz", "--out",
+                                                    t / "seq" / "c"], "the input"),
+    C("input", "baselines-run-inside-seq", lambda b, t: ["baselines", "run", "single-pano", seq_copy(b, t),
+                                                         t / "seq" / "o", *Q], "the input"),
+    C("input", "view-out-inside-map", lambda b, t: ["view", map_copy(b, t), "--out", t / "map" / "v.rrd", *Q],
+      "the input"),
+    C("input", "map-onto-precomputed-scores",
+      lambda b, t: ["map", b / "seq", precomputed(b, t), "--segmenter", f"precomputed:{t / 'pre'}", "--overwrite", *Q],
+      "the input"),
+    C("input", "baselines-run-onto-precomputed-scores",
+      lambda b, t: ["baselines", "run", "single-pano", b / "seq", precomputed(b, t), "--segmenter",
+                    f"precomputed:{t / 'pre'}", "--overwrite", *Q], "the input"),
+    C("input", "eval-out-links-to-pred-folder",
+      lambda b, t: ["eval", copied(b / "pred.npz", (t / "d").mkdir() or t / "d" / "p.npz"), b / "gt.npz", "--out",
+                    link(t / "e", t / "d"), "--overwrite"], "the input"),
+    # --- OUT.config.json beside a one-file output follows the output's rule: kept without --overwrite (issue 26)
+    C("sidecar", "show", lambda b, t: ["show", b / "gt.npz", (write(t / "gt.config.json", "{}"), t / "gt.png")[1]],
+      "overwrite"),
+    C("sidecar", "gt", lambda b, t: ["gt", b / "scene", (write(t / "g.config.json", "{}"), t / "g.npz")[1]],
+      "overwrite"),
+    C("sidecar", "gt-lift", lambda b, t: ["gt", "--from-sequence", b / "seq",
+                                          (write(t / "g.config.json", "{}"), t / "g.npz")[1], "--quiet"], "overwrite"),
+    C("sidecar", "merge", lambda b, t: ["baselines", "merge", (write(t / "m.config.json", "{}"), t / "m.npz")[1],
+                                        b / "pred.npz"], "overwrite"),
+    C("sidecar", "perturb", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt",
+                                          (write(t / "o.config.json", "{}"), t / "o.txt")[1]], "overwrite"),
+    C("sidecar", "traj-eval-plot",
+      lambda b, t: ["traj", "eval", map_poses(b), b / "seq" / "poses.txt", "--align", "none",
+                    "--plot", (write(t / "p.config.json", "{}"), t / "p.png")[1]], "overwrite"),
+    C("sidecar", "query-out", lambda b, t: ["query", b / "map", "bed", "--out",
+                                            (write(t / "q.config.json", "{}"), t / "q.json")[1]], "overwrite"),
+    C("sidecar", "relabel", lambda b, t: ["relabel", b / "map", (write(t / "n.config.json", "{}"), t / "n.npz")[1],
+                                          "--vocab", "bed,sofa"], "overwrite"),
+    C("sidecar", "view", lambda b, t: ["view", b / "map", "--out", (write(t / "v.config.json", "{}"), t / "v.rrd")[1],
+                                       *Q], "overwrite"),
+    # --- no two outputs of one command at one path (issue 26)
+    C("twice", "traj-eval-plot-is-json",
+      lambda b, t: ["traj", "eval", map_poses(b), b / "seq" / "poses.txt", "--align", "none", "--plot", t / "x.png",
+                    "--json", t / "x.png"], "two outputs"),
+    C("twice", "traj-eval-json-is-plot-config",
+      lambda b, t: ["traj", "eval", map_poses(b), b / "seq" / "poses.txt", "--align", "none", "--plot", t / "x.png",
+                    "--json", t / "x.config.json"], "two outputs"),
+    C("twice", "map-rerun-is-frame-times", lambda b, t: ["map", b / "seq", t / "m", "--rerun", t / "x.rrd",
+                                                         "--frame-times", t / "x.rrd", *Q], "two outputs"),
+    C("twice", "map-frame-times-is-out", lambda b, t: ["map", b / "seq", t / "m", "--frame-times", t / "m", *Q],
+      "two outputs"),
+    # --- usage errors (Typer's): one line naming the option, as every other refusal (issue 26)
+    C("usage", "unknown-option", lambda b, t: ["map", b / "seq", t / "m", "--nosuch"], "--nosuch"),
+    C("usage", "option-without-value", lambda b, t: ["coverage", b / "seq", b / "gt.npz", "--out"], "--out"),
+    C("usage", "not-a-number", lambda b, t: ["render", b / "scene", t / "q", "--width", "wide"], "--width"),
+    C("usage", "missing-argument", lambda b, t: ["traj", "eval", b / "seq" / "poses.txt"], "GT"),
+    C("usage", "unknown-command", lambda b, t: ["rendr", b / "scene", t / "q"], "rendr"),
+    C("usage", "unknown-subcommand", lambda b, t: ["convert", "replicaoc", b / "in.pkl", t / "g.npz"], "replicaoc"),
+    C("usage", "bad-choice", lambda b, t: ["eval", b / "pred.npz", b / "gt.npz", "--mask", "nosuch"], "--mask"),
     # --- pose files
     C("poses", "tum-zero-quaternion",
       lambda b, t: ["map", b / "seq", t / "out", "--poses", poses_file(t, tum_lines(4, "0 0 0 0")), *Q], "quaternion"),
@@ -600,11 +699,17 @@ CASES = [
     C("baselines", "merge-not-a-grid", lambda b, t: ["baselines", "merge", t / "m.npz", write(t / "x.txt", "x")],
       "x.txt"),
     C("baselines", "merge-out-is-input", lambda b, t: ["baselines", "merge", b / "pred.npz", b / "pred.npz",
-                                                       "--overwrite"], "input"),
+                                                       "--overwrite"], "the input"),
     C("baselines", "map-config-unknown", lambda b, t: ["map", b / "seq", t / "o", "--config",
                                                        write(t / "c.json", '{"kernal": "point"}'), *Q], "kernal"),
     C("baselines", "map-config-resume", lambda b, t: ["map", "--resume", map_copy(b, t), "--config",
                                                       write(t / "c.json", "{}"), *Q], "--config"),
+    # a failure found mid-run is printed on its own line, after the progress bar (issue 26)
+    C("baselines", "run-corrupt-frame-after-the-bar",
+      lambda b, t: ["baselines", "run", "single-pano", seq_with_frame(b, t, "depth", corrupt_idat(b, "depth")),
+                    t / "o"], "000002.png"),
+    C("baselines", "views-corrupt-frame-after-the-bar",
+      lambda b, t: ["views", seq_with_frame(b, t, "depth", corrupt_idat(b, "depth")), t / "v"], "000002.png"),
     # --- trajectories (traj eval / perturb; --poses slam)
     C("traj", "eval-missing-est", lambda b, t: ["traj", "eval", t / "no.txt", b / "seq" / "poses.txt"], "not found"),
     C("traj", "eval-bad-line", lambda b, t: ["traj", "eval", poses_file(t, "1 2 3\n"), b / "seq" / "poses.txt"],
@@ -623,7 +728,7 @@ CASES = [
       lambda b, t: ["map", b / "seq", t / "out", "--poses",
                     write(t / "p.tum", "".join(f"{i + 0.5} 0 0 0 0 0 0 1\n" for i in range(3))), *Q], "no pose within"),
     C("traj", "perturb-onto-input", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", b / "seq" / "poses.txt"],
-      "input"),
+      "the input"),
 ]
 
 
@@ -820,6 +925,24 @@ def test_non_utf8_paths_work_for_map_render_and_show(base, tmp_path):
     r = run_sub("show", tmp_path / os.fsdecode(b"map-\xe9") / "prediction.npz", tmp_path / os.fsdecode(b"p\xe9.png"),
                 "--width-px", "200")
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_non_utf8_names_reach_plot_titles_safely(capsys, base, tmp_path):
+    """coverage's and traj eval --plot's titles name their input; a name that is not UTF-8 is drawn with its odd
+    bytes escaped, not a crash in matplotlib (issue 26). Same for a --titles value show is given."""
+    seq = tmp_path / os.fsdecode(b"seq-\xff")
+    shutil.copytree(base / "seq", seq)
+    code, out, err = run_cli(capsys, ["coverage", seq, base / "gt.npz", "--out", tmp_path / "c"])
+    assert code == 0, err
+    assert (tmp_path / "c" / "coverage.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    est = copied(map_poses(base), tmp_path / os.fsdecode(b"est-\xff.txt"))
+    code, out, err = run_cli(capsys, ["traj", "eval", est, base / "seq" / "poses.txt", "--align", "none", "--plot",
+                                      tmp_path / "t.png"])
+    assert code == 0, err
+    assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    code, out, err = run_cli(capsys, ["show", base / "gt.npz", tmp_path / "s.png", "--titles", os.fsdecode(b"gt-\xff"),
+                                      "--width-px", "200"])
+    assert code == 0, err
 
 
 def test_non_utf8_corrupt_frame_is_one_line(base, tmp_path):

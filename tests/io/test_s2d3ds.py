@@ -229,3 +229,14 @@ def test_labels_json_reader(tmp_path):
     f = tmp_path / "semantic_labels.json"
     f.write_text(json.dumps(LABELS))
     assert read_semantic_labels(f) == LABELS
+
+
+def test_output_never_holds_the_labels_json(tmp_path, capsys):
+    """--labels-json is an input: an output folder that holds it is refused as such, even with --overwrite."""
+    area = write_area(tmp_path / "data")
+    labels = tmp_path / "data" / "assets" / "semantic_labels.json"
+    before = snapshot(tmp_path)
+    code, o, err = run(capsys, "convert", "s2d3ds", area, labels.parent, "--labels-json", labels, "--overwrite",
+                       "--quiet")
+    assert code == 2 and "the input" in err and len(err.strip().splitlines()) == 1, err
+    assert snapshot(tmp_path) == before

@@ -170,13 +170,14 @@ def test_query_command_writes_ply_and_png_and_refuses_bad_input(room_map, minilm
     head = (tmp_path / "q.ply").read_bytes()[:400].decode("ascii", "replace")
     n = int(head.split("element vertex ")[1].split()[0])
     assert n > 1000 and "property uchar red" in head
-    code, out, err = run_cli(capsys, ["query", room_map, "bed", "--out", tmp_path / "q.png", "--json"])
+    # another stem: q.png's config would be q.ply's q.config.json, kept without --overwrite (issue 26)
+    code, out, err = run_cli(capsys, ["query", room_map, "bed", "--out", tmp_path / "p.png", "--json"])
     assert code == 0, err
     assert json.loads(out)["match"]["matched"][0]["class"] == "bed"
-    assert (tmp_path / "q.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     for argv, what in ((["query", tmp_path, "bed"], "config.json"),
                        (["query", room_map, "bed", "--out", tmp_path / "q.txt"], "--out must end in"),
-                       (["query", room_map, "bed", "--out", tmp_path / "q.png"], "already exists"),
+                       (["query", room_map, "bed", "--out", tmp_path / "p.png"], "already exists"),
                        (["query", room_map, "  "], "query is empty")):
         code, out, err = run_cli(capsys, argv)
         assert code == 2 and what in err and len(err.strip().splitlines()) == 1, (argv, err)
