@@ -142,6 +142,13 @@ def run_baseline(cfg: BaselineConfig) -> dict:
                             Path(cfg.seq) / "meta.json")
     if len(seq) == 0:
         raise PanovoccError("sequence has no frames", Path(cfg.seq) / "meta.json")
+    if cfg.name == "single-pano":
+        from ..runtime import check_memory
+        from .single_pano import single_pano_memory
+
+        n, need = single_pano_memory(box, cfg.voxel_size, seq.poses)
+        check_memory(need, f"--box {cfg.box} at {cfg.voxel_size:g} m ({n[0]}x{n[1]}x{n[2]} voxels a frame, {len(seq)} "
+                           "frames)", "choose a smaller --box or a larger --voxel-size")
     check_output(cfg.out, "baseline", cfg.overwrite, inputs=(cfg.seq, cfg.poses, cfg.gt))
     gt = read_grid(cfg.gt) if cfg.gt is not None else None
     mc = _map_config(cfg, seq)

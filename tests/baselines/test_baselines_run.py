@@ -180,11 +180,14 @@ def test_single_pano_frames_and_per_frame_scores(room, tmp_path, cli):
     (["single-pano", "{room}", "{t}/o", "--gt", "{t}/no.npz"], "not found"),
     (["persp-tsdf", "{room}", "{room}"], "input"),
     (["forward-only", "{room}", "{t}/o", "--gt", "{room}/meta.json"], "panovocc eval"),
+    (["single-pano", "{room}", "{t}/o", "--box", "1e9,1e9,1e9"], "GiB of memory"),  # estimated before any frame
+    (["single-pano", "{room}", "{t}/o", "--box", "1e300,1,1"], "--box"),
 ])
 def test_bad_inputs_write_nothing(room, tmp_path, cli, argv, expect):
     before = sorted(p.name for p in room.rglob("*"))
     code, _, err = cli(["baselines", "run", *[a.format(room=room, t=tmp_path) for a in argv], "--quiet"])
     assert code == 2 and expect.lower() in err.lower() and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "o").exists() and sorted(p.name for p in room.rglob("*")) == before
 
 
