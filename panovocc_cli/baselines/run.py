@@ -287,7 +287,7 @@ def run_merge(cfg: MergeConfig) -> dict:
     if not cfg.inputs:
         raise PanovoccError("nothing to merge: give one prediction file per view sequence")
     check_output(cfg.out, "grid", cfg.overwrite, inputs=cfg.inputs, folder=False)
-    names = parse_class_names(cfg.class_names) if cfg.class_names else None
+    names = parse_class_names(cfg.class_names) if cfg.class_names is not None else None
     read = [(Path(p), *read_prediction(Path(p), names, cfg.voxel_size)) for p in cfg.inputs]
     kinds = {k for _, k, _ in read}
     kind = cfg.kind
@@ -301,6 +301,12 @@ def run_merge(cfg: MergeConfig) -> dict:
         if k != kind:
             raise PanovoccError(f"is a {k} prediction; --kind {kind} expects {kind} inputs", p)
     items = [x for _, _, x in read]
+    from ..runtime import check_memory
+    from .merge import merge_memory
+
+    shape, need = merge_memory(items, kind)
+    check_memory(need, f"the inputs span a {shape[0]}x{shape[1]}x{shape[2]} grid, which",
+                 "check the inputs' voxel coordinates (a voxel far from the others)")
     grid = merge_dense(items) if kind == "dense" else merge_sparse(items)
     with output_file(cfg.out):
         write_grid(cfg.out, grid)
