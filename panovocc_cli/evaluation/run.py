@@ -330,7 +330,7 @@ def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
     names_file = Path(cfg.class_names) if cfg.class_names and "," not in cfg.class_names else None
     check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=(cfg.pkl, names_file), folder=False)
     _not_an_input(cfg.out_npz, [cfg.pkl])
-    names = parse_class_names(cfg.class_names) if cfg.class_names else None
+    names = parse_class_names(cfg.class_names) if cfg.class_names is not None else None
     data = load_pickle(cfg.pkl)
     grid, shift = replicaocc_to_grid(data, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift, cfg.pkl)
     with output_file(cfg.out_npz):
