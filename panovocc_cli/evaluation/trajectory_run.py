@@ -55,11 +55,11 @@ class TrajPerturbConfig:
                      help="Trajectory to perturb (TUM or NICE-SLAM form).")
     out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT",
                       help="Output trajectory: TUM when it ends in .tum, else NICE-SLAM form.")
-    drift: float = option(0.0, min=0, help="Translation random walk: std per axis of each step's error, "
+    drift: float = option(0.0, min=0, max=100, help="Translation random walk: std per axis of each step's error, "
                                           "metres per sqrt(frame).")
-    drift_per_m: float = option(0.0, min=0, help="Translation error per metre travelled: std per axis of "
+    drift_per_m: float = option(0.0, min=0, max=100, help="Translation error per metre travelled: std per axis of "
                                                 "each step's error / step length (0.01 = 1 %).")
-    rot_drift_deg: float = option(0.0, min=0, help="Rotation random walk: std per axis of each step's "
+    rot_drift_deg: float = option(0.0, min=0, max=180, help="Rotation random walk: std per axis of each step's "
                                                   "rotation error, degrees per frame.")
     jitter: float = option(0.0, min=0, max=100, help="Per-frame translation jitter: std per camera axis of each "
                                                      "frame's own error, metres (not accumulated).")

@@ -171,3 +171,13 @@ def test_traj_perturb_jitter_command_line(tmp_path, capsys):
     assert np.allclose(DJ, expect, atol=1e-12)
     code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "bad.txt", "--jitter", "-1"])
     assert code == 2 and "--jitter" in err and not (tmp_path / "bad.txt").exists()
+
+
+@pytest.mark.parametrize("opt", ["--drift", "--drift-per-m", "--rot-drift-deg"])
+def test_traj_perturb_refuses_a_drift_that_overflows(tmp_path, capsys, opt):
+    """--drift 1e300 squared overflows (it was an OverflowError traceback): the drifts have a range."""
+    write_poses(tmp_path / "gt.txt", _helix(5))
+    code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "o.txt", opt, "1e300"])
+    assert code == 2 and opt in err and len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.txt"]
+
