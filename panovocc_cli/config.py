@@ -48,6 +48,9 @@ SNAP_TOL = 0.25
 """Fraction of a voxel a ReplicaOcc voxel centre may be off the lattice and still be snapped onto it."""
 COVERAGE_TOL_M = 0.01
 """Metres: a depth point this close to a voxel face also observes the voxel across it (coverage)."""
+MAX_POSITION_M = 1e9
+"""Metres: the largest camera coordinate a trajectory file may hold (a million km; squares of larger values
+overflow the error statistics)."""
 MATCH_MAX_DIFF = 0.01
 """Seconds (or frame indices): the largest timestamp difference of two matched trajectory poses (evo's default)."""
 PROB_TOL = 1e-2
