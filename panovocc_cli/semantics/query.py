@@ -117,7 +117,9 @@ def match_classes(query: str, vocab: Sequence[str], encode: TextEncoder, *, min_
     min_similarity : cosine a word needs to be matched; margin : matched words lie within this cosine of
         the best; temperature : softmax temperature of the weights (cosine units)
     """
-    q = query.strip()
+    from ..classes import check_text
+
+    q = check_text(query, "the query").strip()
     if not q:
         raise PanovoccError("the query is empty; expected words, e.g. 'a place to sleep'")
     vocab = list(vocab)
@@ -242,10 +244,10 @@ def find_clusters(keys: np.ndarray, mask: np.ndarray, scores: np.ndarray, labels
 def parse_relabel_vocab(spec: str) -> list[tuple[str, list[str]]]:
     """``"seating=chair+sofa,bed,floor"`` -> ``[("seating", ["chair", "sofa"]), ("bed", []), ("floor", [])]``
     (names canonical; an empty list = match by name or similarity)."""
-    from ..classes import canonical_name
+    from ..classes import canonical_name, check_text
 
     out, seen = [], set()
-    for part in (spec or "").split(","):
+    for part in check_text(spec or "", "the new vocabulary (--vocab)").split(","):
         part = part.strip()
         if not part:
             continue

@@ -101,6 +101,25 @@ def test_relabel_matrix_merges_names_and_similar_words():
             parse_relabel_vocab(bad)
 
 
+NOT_UTF8 = b"caf\xe9".decode("utf-8", "surrogateescape")  # how Python hands over a non-UTF-8 argv word
+
+
+def test_text_that_is_not_utf8_is_refused_before_the_text_model():
+    """A query or vocabulary word that is not valid UTF-8 (a Latin-1 byte on the command line) is one line,
+    not a TypeError from the tokenizer: refused before anything is encoded."""
+    from panovocc_cli.classes import parse_vocab
+
+    def enc(texts):
+        raise AssertionError("the text model must not see it")
+
+    for call in (lambda: match_classes(f"a {NOT_UTF8}", ["bed"], enc),
+                 lambda: parse_relabel_vocab(f"bed,{NOT_UTF8}"), lambda: parse_relabel_vocab(f"x=bed+{NOT_UTF8}"),
+                 lambda: parse_vocab(f"eval8,{NOT_UTF8}")):
+        with pytest.raises(PanovoccError, match="not valid UTF-8") as e:
+            call()
+        assert "\n" not in str(e.value)
+
+
 # --- end to end on a map --------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -177,7 +196,9 @@ def test_query_command_writes_ply_and_png_and_refuses_bad_input(room_map, minilm
     for argv, what in ((["query", tmp_path, "bed"], "config.json"),
                        (["query", room_map, "bed", "--out", tmp_path / "q.txt"], "--out must end in"),
                        (["query", room_map, "bed", "--out", tmp_path / "q.png"], "already exists"),
-                       (["query", room_map, "  "], "query is empty")):
+                       (["query", room_map, "  "], "query is empty"),
+                       (["query", room_map, NOT_UTF8], "not valid UTF-8"),
+                       (["relabel", room_map, tmp_path / "n.npz", "--vocab", f"bed,{NOT_UTF8}"], "not valid UTF-8")):
         code, out, err = run_cli(capsys, argv)
         assert code == 2 and what in err and len(err.strip().splitlines()) == 1, (argv, err)
 
