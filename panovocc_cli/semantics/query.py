@@ -261,6 +261,9 @@ def parse_relabel_vocab(spec: str) -> list[tuple[str, list[str]]]:
         old = [canonical_name(o.strip()) for o in olds.split("+") if o.strip()] if olds else []
         if sep and not old:
             raise PanovoccError(f"{part!r}: expected NAME=old1+old2 with classes of the map after '='")
+        twice = sorted({o for o in old if old.count(o) > 1})
+        if twice:
+            raise PanovoccError(f"{part!r} names {twice[0]!r} twice; expected each stored class once")
         out.append((name, old))
     if not out:
         raise PanovoccError("the new vocabulary is empty; expected e.g. 'bed,seating=chair+sofa,floor'")

@@ -120,6 +120,15 @@ def test_text_that_is_not_utf8_is_refused_before_the_text_model():
         assert "\n" not in str(e.value)
 
 
+def test_a_merge_naming_a_stored_class_twice_is_refused():
+    """``x=chair+chair`` names chair twice: refused like a word given twice (``bed,bed``). (A --vocab of map or
+    eval that repeats a class keeps it once: documented in docs/semantics.md and tested in
+    tests/semantics/test_semantics_segmenter.py.)"""
+    with pytest.raises(PanovoccError, match="'chair' twice"):
+        parse_relabel_vocab("bed,x=chair+chair")
+    assert parse_relabel_vocab("bed,x=chair+sofa") == [("bed", []), ("x", ["chair", "sofa"])]
+
+
 # --- end to end on a map --------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -198,7 +207,8 @@ def test_query_command_writes_ply_and_png_and_refuses_bad_input(room_map, minilm
                        (["query", room_map, "bed", "--out", tmp_path / "q.png"], "already exists"),
                        (["query", room_map, "  "], "query is empty"),
                        (["query", room_map, NOT_UTF8], "not valid UTF-8"),
-                       (["relabel", room_map, tmp_path / "n.npz", "--vocab", f"bed,{NOT_UTF8}"], "not valid UTF-8")):
+                       (["relabel", room_map, tmp_path / "n.npz", "--vocab", f"bed,{NOT_UTF8}"], "not valid UTF-8"),
+                       (["relabel", room_map, tmp_path / "n.npz", "--vocab", "bed,x=chair+chair"], "twice")):
         code, out, err = run_cli(capsys, argv)
         assert code == 2 and what in err and len(err.strip().splitlines()) == 1, (argv, err)
 
