@@ -18,6 +18,8 @@ from typing import Any, Callable, Sequence
 # --------------------------------------------------------------------------------------- defaults
 DEFAULT_SEED = 0
 """Seed of every random choice (scene generator, render noise, simulated segmenter) unless given."""
+MAX_SEED = 2 ** 64 - 1
+"""Largest seed a command accepts (64 bits: what a seed option means everywhere; numpy would take any int)."""
 DEFAULT_VOXEL_SIZE = 0.08
 """Voxel edge length h, metres: the paper's and ReplicaOcc/FreeOcc's resolution."""
 MAX_VOXEL_SIZE = 10.0
@@ -122,10 +124,15 @@ def option_name(field_name: str, o: Opt) -> str:
     return o.flag or "--" + field_name.replace("_", "-")
 
 
+def _bound(x) -> str:
+    """A bound as typed: an int in full (``18446744073709551615``), a float short (``10``, ``0.001``)."""
+    return str(x) if isinstance(x, int) and not isinstance(x, bool) else f"{x:g}"
+
+
 def bounds_words(o: Opt) -> str:
     """The declared range in words: ``> 0 and <= 10``."""
-    lo = None if o.min is None else f"{'>' if o.min_open else '>='} {o.min:g}"
-    hi = None if o.max is None else f"<= {o.max:g}"
+    lo = None if o.min is None else f"{'>' if o.min_open else '>='} {_bound(o.min)}"
+    hi = None if o.max is None else f"<= {_bound(o.max)}"
     return " and ".join(t for t in (lo, hi) if t)
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_STRIDE, MAX_VOXEL_SIZE, option, validate_config
+from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_SEED, MAX_STRIDE, MAX_VOXEL_SIZE, option, validate_config
 from ..errors import PanovoccError
 from ..geometry.cameras import TWELVE_PITCH_DEG
 from .single_pano import EMBODIEDOCC_BOX_M, VERTICAL
@@ -72,7 +72,7 @@ class BaselineConfig:
                                  "simulated when SEQ has labels, else none.")
     vocab: str | None = option(None, help="Vocabulary, as for map (e.g. eval8,open4); default eval8,open4.")
     noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Seed of the simulated segmenter's noise.")
     semantic_stride: int = option(0, min=0, max=MAX_STRIDE, help="The segmenter sees every s-th pixel, as for map; "
                                                                  "0 = auto, max(1, W // 512) (map's default).")
     fov_deg: float = option(90.0, min=10.0, max=170.0, help="persp-tsdf, forward-only: field of view of each "

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..config import validate_config
-from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_VOXEL_SIZE, option
+from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_SEED, MAX_VOXEL_SIZE, option
 from ..errors import PanovoccError
 from ..io.atomic import check_output, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
@@ -398,7 +398,7 @@ class SegevalConfig:
     segmenter: str = option("simulated", help="Segmenter to score: simulated | precomputed:DIR.")
     vocab: object = option(None, cli_type=str, help="Vocabulary (as for map); default eval8,open4.")
     noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Seed of the simulated segmenter's noise.")
     classes: str = option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c).")
     every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, MATCH_MAX_DIFF, option, validate_config
+from ..config import DEFAULT_SEED, MATCH_MAX_DIFF, MAX_SEED, option, validate_config
 from ..errors import PanovoccError
 from .trajectory import ALIGNMENTS, TrajectoryResult, evaluate_trajectory
 
@@ -65,8 +65,8 @@ class TrajPerturbConfig:
                                                      "frame's own error, metres (not accumulated).")
     rot_jitter_deg: float = option(0.0, min=0, max=180, help="Per-frame rotation jitter: std per camera axis of "
                                                              "each frame's own rotation error, degrees.")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the drift and the jitter; the same seed gives the same "
-                                                 "file.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED,
+                       help="Seed of the drift and the jitter; the same seed gives the same file.")
 
 
 def associate(stamps_est, stamps_ref, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
