@@ -22,6 +22,7 @@ import numpy as np
 from ..config import validate_config
 from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_SEED, MAX_VOXEL_SIZE, option
 from ..errors import PanovoccError
+from ..grid import EMPTY, UNKNOWN
 from ..io.atomic import check_output, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
 from ..io.runconfig import config_path_beside, write_run_config
@@ -71,6 +72,9 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     per_pair = []
     for pred_path, gt_path in cfg.pairs:
         pred, gt = read_grid(pred_path), read_grid(gt_path)
+        if not np.any((gt.labels != EMPTY) & (gt.labels != UNKNOWN)):
+            raise PanovoccError("the ground truth has no occupied voxel (every label is 0 or 255): nothing to score",
+                                gt_path)
         try:
             res = evaluate([(pred, gt)], cfg.classes, {"pred": str(pred_path), "gt": str(gt_path),
                                                        "voxel_size": gt.voxel_size})
