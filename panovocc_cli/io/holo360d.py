@@ -187,9 +187,9 @@ def read_holo_frame(scene: HoloScene, stem: str, use_mask: bool = True) -> tuple
     ------
     PanovoccError when a file cannot be decoded, the panorama is not 2:1, or the images differ in size.
     """
-    from .images import read_exr, read_image
+    from .images import read_exr, read_image, read_rgb
 
-    rgb = read_image(scene.rgb[stem], "color")
+    rgb = read_rgb(scene.rgb[stem])
     depth = read_exr(scene.depth[stem])
     h, w = rgb.shape[:2]
     if w != 2 * h:

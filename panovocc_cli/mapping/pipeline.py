@@ -304,7 +304,8 @@ def _check_inputs(cfg: MapConfig, seq: Sequence) -> None:
 
     spec = cfg.semantic.segmenter if cfg.semantic.enabled else ""
     labels = ("semantic",) if spec == "simulated" or (seq.root / "semantic").is_dir() else ()
-    seq.check_files(("depth",) + (("rgb",) if spec else ()) + labels)
+    rgb = ("rgb",) if spec or (seq.root / "rgb").is_dir() else ()  # colours are read even without a segmenter
+    seq.check_files(("depth",) + rgb + labels)
     if spec.startswith("precomputed:"):
         from ..classes import canonical_name
         from ..io.precomputed import read_vocab_json
