@@ -151,6 +151,10 @@ def run_baseline(cfg: BaselineConfig) -> dict:
                            "frames)", "choose a smaller --box or a larger --voxel-size")
     check_output(cfg.out, "baseline", cfg.overwrite, inputs=(cfg.seq, cfg.poses, cfg.gt))
     gt = read_grid(cfg.gt) if cfg.gt is not None else None
+    if gt is not None:  # the per-frame scores' class set, checked before the first frame is mapped
+        from ..classes import parse_class_set
+
+        parse_class_set(cfg.classes, gt.class_names)
     mc = _map_config(cfg, seq)
     frames = sequence_frames(mc, seq)  # the map's segmenter, built the map's way
     vocab = list(mc.semantic.vocab) if mc.semantic.enabled else []

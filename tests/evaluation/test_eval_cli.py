@@ -60,7 +60,8 @@ def test_eval_bad_inputs_exit_2(capsys, tmp_path, pair):
     coarse = read_grid(gt)
     write_grid(tmp_path / "coarse.npz", Grid(coarse.labels, np.full(3, 0.05), 0.1, coarse.class_names))
     for args in ([pred, tmp_path / "missing.npz"], [pred], [pred, tmp_path / "coarse.npz"],
-                 [pred, gt, "--mask", "nope"], [pred, gt, "--pair", pred], [pred, gt, "--classes", " , "]):
+                 [pred, gt, "--mask", "nope"], [pred, gt, "--pair", pred], [pred, gt, "--classes", " , "],
+                 [pred, gt, "--classes", ""]):
         code, out, err = run(capsys, "eval", *args)
         assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, (args, err)
 
