@@ -38,6 +38,25 @@ PAPER_COLORS: dict[str, tuple[int, int, int]] = {
 }
 
 
+def check_text(text: str, what: str) -> str:
+    """``text`` if it is valid UTF-8 text, else a one-line :class:`PanovoccError` naming ``what``.
+
+    A command-line word that is not UTF-8 (a Latin-1 byte) reaches Python as a string with lone surrogates
+    (``surrogateescape``); text models, tokenizers and JSON writers fail on it with a traceback. Every
+    vocabulary and query text is checked here first (``map --vocab``, ``eval --classes``, ``query``,
+    ``relabel --vocab``).
+    """
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        try:  # the bytes as given (a Latin-1 e-acute shows as \xe9)
+            raw = text.encode("utf-8", "surrogateescape")
+        except UnicodeEncodeError:
+            raw = text.encode("utf-8", "backslashreplace")
+        raise PanovoccError(f"{what} '{raw.decode('utf-8', 'backslashreplace')}' is not valid UTF-8 text") from None
+    return text
+
+
 def canonical_name(name: str) -> str:
     """Lower-case, trimmed, with Replica's aliases mapped (``tv-screen`` -> ``tv``, ``lamp`` -> ``lighting``)."""
     n = name.strip().lower()
@@ -101,7 +120,7 @@ def parse_vocab(spec: str | Sequence[str] | None = None, available: Sequence[str
         items: Iterable[str] = DEFAULT_VOCAB
         shown = "default"
     elif isinstance(spec, str):
-        shown = spec
+        shown = check_text(spec, what)
         items = [t for part in spec.split(",") for t in part.split("+")]
     else:
         shown = ",".join(map(str, spec))
@@ -111,6 +130,7 @@ def parse_vocab(spec: str | Sequence[str] | None = None, available: Sequence[str
     for raw in items:
         if not isinstance(raw, str):
             raise PanovoccError(f"{what} {shown!r}: class names must be strings, got {raw!r}")
+        check_text(raw, what)
         token = raw.strip().lower()
         if not token:
             continue

@@ -18,6 +18,8 @@ from typing import Any, Callable, Sequence
 # --------------------------------------------------------------------------------------- defaults
 DEFAULT_SEED = 0
 """Seed of every random choice (scene generator, render noise, simulated segmenter) unless given."""
+MAX_SEED = 2 ** 64 - 1
+"""Largest seed a command accepts (64 bits: what a seed option means everywhere; numpy would take any int)."""
 DEFAULT_VOXEL_SIZE = 0.08
 """Voxel edge length h, metres: the paper's and ReplicaOcc/FreeOcc's resolution."""
 MAX_VOXEL_SIZE = 10.0
@@ -48,6 +50,9 @@ SNAP_TOL = 0.25
 """Fraction of a voxel a ReplicaOcc voxel centre may be off the lattice and still be snapped onto it."""
 COVERAGE_TOL_M = 0.01
 """Metres: a depth point this close to a voxel face also observes the voxel across it (coverage)."""
+MAX_POSITION_M = 1e9
+"""Metres: the largest camera coordinate a trajectory file may hold (a million km; squares of larger values
+overflow the error statistics)."""
 MATCH_MAX_DIFF = 0.01
 """Seconds (or frame indices): the largest timestamp difference of two matched trajectory poses (evo's default)."""
 PROB_TOL = 1e-2
@@ -119,10 +124,15 @@ def option_name(field_name: str, o: Opt) -> str:
     return o.flag or "--" + field_name.replace("_", "-")
 
 
+def _bound(x) -> str:
+    """A bound as typed: an int in full (``18446744073709551615``), a float short (``10``, ``0.001``)."""
+    return str(x) if isinstance(x, int) and not isinstance(x, bool) else f"{x:g}"
+
+
 def bounds_words(o: Opt) -> str:
     """The declared range in words: ``> 0 and <= 10``."""
-    lo = None if o.min is None else f"{'>' if o.min_open else '>='} {o.min:g}"
-    hi = None if o.max is None else f"<= {o.max:g}"
+    lo = None if o.min is None else f"{'>' if o.min_open else '>='} {_bound(o.min)}"
+    hi = None if o.max is None else f"<= {_bound(o.max)}"
     return " and ".join(t for t in (lo, hi) if t)
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from .config import DEFAULT_SEED, DEFAULT_WIDTH, MIN_WIDTH, NOISE_MODELS, option, validate_config
+from .config import DEFAULT_SEED, DEFAULT_WIDTH, MAX_SEED, MIN_WIDTH, NOISE_MODELS, option, validate_config
 
 
 @dataclass
@@ -28,7 +28,8 @@ class DemoConfig:
     """
 
     out: Path = option(Path("work/demo"), argument=True, help="Working folder for every stage's outputs.")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the procedural scene, render noise and segmenter.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED,
+                       help="Seed of the procedural scene, render noise and segmenter.")
     frames: int = option(60, min=2, help="Number of trajectory poses (frames).")
     width: int = option(DEFAULT_WIDTH, min=MIN_WIDTH, even=True,
                         help="ERP width in pixels (even; height = width / 2).")

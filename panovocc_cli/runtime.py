@@ -19,6 +19,9 @@ What it does, and why (figures: docs/mapping.md, "Speed"):
   kernel runs.
 * glibc ``mallopt``: keep freed memory in the process (:func:`keep_freed_heap`).
 
+It also holds the one memory check of the commands (:func:`check_memory`): a command that would allocate
+more than it can have refuses in one line before any work, instead of being killed for memory.
+
 Environment values the user already set are kept (``OMP_WAIT_POLICY=active panovocc map ...`` spins).
 Calling :func:`setup` again does nothing more. Called after numba was imported, it makes numba read its
 settings again; it must still come before the first parallel kernel runs (libgomp reads
@@ -46,6 +49,9 @@ HEAP_TRIM_BYTES = 256 * 2 ** 20
 HEAP_MMAP_BYTES = 32 * 2 ** 20
 
 _done: dict | None = None
+
+MEMORY_SHARE = 0.8
+"""Largest share of the memory available now that one command's estimate may ask for (:func:`check_memory`)."""
 
 
 def keep_freed_heap() -> bool:
@@ -75,6 +81,47 @@ def release_freed_heap() -> bool:
         return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
     except (OSError, AttributeError):
         return False
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (``MemAvailable`` of /proc/meminfo; else physical)."""
+    from pathlib import Path
+
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62
+
+
+def check_memory(need: float, what: str, advice: str, path=None) -> None:
+    """Refuse work whose memory estimate does not fit: one line, before anything is allocated or written.
+
+    Parameters
+    ----------
+    need : bytes the work would hold at once (an estimate; any float, ``inf`` included)
+    what : what needs it, for the message (``"--box 1e9,1e9,1e9 at 0.08 m: 3 frames of 1e10^3 voxels"``)
+    advice : what to change (``"choose a smaller --box"``)
+    path : the file or folder the message names, if any
+
+    Raises
+    ------
+    PanovoccError
+        When ``need`` exceeds :data:`MEMORY_SHARE` of :func:`available_memory`:
+        ``"{what} needs about X GiB of memory; Y GiB is available: {advice}"``.
+    """
+    from .errors import PanovoccError
+
+    have = available_memory()
+    if not need <= MEMORY_SHARE * have:
+        shown = f"{need / 2 ** 30:.1f}" if need < 2.0 ** 80 else f"{need / 2 ** 30:.2g}"
+        raise PanovoccError(f"{what} needs about {shown} GiB of memory; {have / 2 ** 30:.1f} GiB is available: "
+                            f"{advice}", path)
 
 
 def setup() -> dict:

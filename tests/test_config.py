@@ -69,7 +69,7 @@ def test_choices_normalised_and_parity():
 
 
 @pytest.mark.parametrize("call, message", [
-    ("render_seed", "--seed must be >= 0, got -1"),
+    ("render_seed", "--seed must be >= 0 and <= 18446744073709551615, got -1"),
     ("render_threads", "--threads must be >= 0, got -2"),
     ("show_width", "--width-px must be >= 64 and <= 16384, got 10"),
     ("demo_frames", "--frames must be >= 2, got 1"),
@@ -118,3 +118,41 @@ def test_run_synth_checks_its_output_like_the_cli(tmp_path):
     with pytest.raises(PanovoccError, match="--overwrite"):
         run_synth(SynthConfig(out=scene, seed=2, frames=2))
     run_synth(SynthConfig(out=scene, seed=2, frames=2, overwrite=True))
+
+
+def _seed_fields(cls, path=()):
+    """(path of field names, option) of every seed option of a config class, nested configs included."""
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(f.type if isinstance(f.type, type) else None):
+            yield from _seed_fields(f.type, path + (f.name,))
+        elif "seed" in f.name and OPT_KEY in f.metadata:
+            yield path + (f.name,), f.metadata[OPT_KEY]
+        elif f.default_factory is not dataclasses.MISSING and dataclasses.is_dataclass(f.default_factory):
+            yield from _seed_fields(f.default_factory, path + (f.name,))
+
+
+def _with_seed(cls, path, value):
+    cfg = _with_required(cls, **({"name": "single-pano"} if cls.__name__ == "BaselineConfig" else {}))
+
+    def put(obj, names):
+        if len(names) == 1:
+            return dataclasses.replace(obj, **{names[0]: value})
+        return dataclasses.replace(obj, **{names[0]: put(getattr(obj, names[0]), names[1:])})
+    return put(cfg, path)
+
+
+def test_every_seed_fits_64_bits():
+    """A seed beyond 64 bits was taken silently (numpy hashes any int); every seed option now says 0 .. 2^64 - 1."""
+    from panovocc_cli.baselines.run import BaselineConfig
+    from panovocc_cli.config import MAX_SEED
+    from panovocc_cli.evaluation.trajectory_run import TrajPerturbConfig
+
+    assert MAX_SEED == 2 ** 64 - 1
+    seen = 0
+    for cls in _configs() + [BaselineConfig, TrajPerturbConfig]:
+        for path, o in _seed_fields(cls):
+            seen += 1
+            assert validate_config(_with_seed(cls, path, MAX_SEED)) is not None
+            with pytest.raises(PanovoccError, match=rf"must be >= 0 and <= {MAX_SEED}, got {2 ** 64}$"):
+                validate_config(_with_seed(cls, path, 2 ** 64))
+    assert seen >= 8, seen

@@ -52,3 +52,23 @@ def test_setup_after_numba_was_imported_still_sets_its_threading_order():
             "rt.setup()\n"
             "print(' '.join(numba.config.THREADING_LAYER_PRIORITY))\n")
     assert _run(code, _env()).strip() == "omp workqueue tbb"
+
+
+def test_check_memory_refuses_an_estimate_beyond_the_memory_available(monkeypatch):
+    """The one memory check of the commands (gt, baselines run single-pano, baselines merge, convert
+    holo360d): within MEMORY_SHARE of what is available passes, beyond it (or inf) is one line naming
+    the need, what is there and what to change."""
+    import pytest
+
+    from panovocc_cli import runtime
+    from panovocc_cli.errors import PanovoccError
+
+    assert runtime.available_memory() > 0
+    monkeypatch.setattr(runtime, "available_memory", lambda: 10 * 2 ** 30)
+    runtime.check_memory(8 * 2 ** 30, "a grid", "choose less")  # 80 %: fits
+    for need in (8.1 * 2 ** 30, float("inf"), 1e300):
+        with pytest.raises(PanovoccError) as e:
+            runtime.check_memory(need, "a grid", "choose less", path="x.npz")
+        msg = str(e.value)
+        assert msg.startswith("x.npz: a grid needs about ") and "10.0 GiB is available: choose less" in msg, msg
+        assert "\n" not in msg

@@ -11,7 +11,11 @@ voting for dense outputs and maximum class confidence for sparse outputs". Two f
 * :func:`merge_sparse` -- scored voxels (:class:`SparseVoxels`): occupied = the union of the listed
   voxels; each voxel takes the class of its single most confident entry over all inputs (ties: the
   earlier input, then the smaller class position). Every other voxel of the merged box is predicted
-  empty (0): a sparse output lists what it finds occupied and nothing else.
+  empty (0): a sparse output lists what it finds occupied and nothing else. An input that lists no voxel
+  adds nothing; inputs that together list none are refused (there is no box to predict).
+
+Both build a dense grid over the box of their inputs (:func:`merged_box`); :func:`merge_memory` is what that
+grid costs, for a check before the merge (``baselines merge``).
 
 Classes are matched by canonical name (:func:`panovocc_cli.classes.canonical_name`); the merged grid's
 ``class_names`` are ``"empty"`` then every input's names in order of first appearance.
@@ -72,6 +76,35 @@ def _check_voxel_sizes(sizes: Sequence[float]) -> float:
     return h
 
 
+#: Bytes a voxel of the merged box costs while merging: dense (occupied, free and label arrays, and the
+#: label copy written), sparse (the label array and its copy).
+MERGE_BYTES_PER_VOXEL = {"dense": 4, "sparse": 2}
+
+
+def _sparse_index(s: SparseVoxels) -> np.ndarray:
+    return np.asarray(s.index, np.int64).reshape(-1, 3)
+
+
+def merged_box(items: Sequence[Grid | SparseVoxels]) -> tuple[np.ndarray, tuple[int, ...]]:
+    """First lattice index (3,) int64 and shape (3 ints) of the grid a merge of ``items`` covers: the union
+    of the grids' boxes, or the box of every listed sparse voxel (raises when none is listed)."""
+    if all(isinstance(x, SparseVoxels) for x in items):
+        idx = np.concatenate([_sparse_index(s) for s in items]) if items else np.zeros((0, 3), np.int64)
+        if len(idx) == 0:
+            raise PanovoccError("the sparse inputs list no voxel: nothing occupied to merge")
+        lo, hi = idx.min(axis=0), idx.max(axis=0) + 1
+    else:
+        lo = np.min([g.index0 for g in items], axis=0)
+        hi = np.max([g.index0 + np.asarray(g.labels.shape) for g in items], axis=0)
+    return lo, tuple(int(x) for x in hi - lo)
+
+
+def merge_memory(items: Sequence[Grid | SparseVoxels], kind: str) -> tuple[tuple[int, ...], float]:
+    """Shape of the merged grid and the bytes merging ``items`` (``kind`` dense | sparse) holds at once."""
+    _, shape = merged_box(items)
+    return shape, float(np.prod(np.asarray(shape, np.float64))) * MERGE_BYTES_PER_VOXEL[kind]
+
+
 def _vote(flat: np.ndarray, cls: np.ndarray, score: np.ndarray, rank: np.ndarray, n_cls: int):
     """For each distinct ``flat`` position: the class with the highest ``score`` summed per (position, class)
     (``rank`` breaks ties: smaller wins). Returns (positions, classes)."""
@@ -105,9 +138,7 @@ def merge_dense(grids: Sequence[Grid]) -> Grid:
     h = _check_voxel_sizes([g.voxel_size for g in grids])
     names = merged_class_names([g.class_names[1:] for g in grids])
     pos_of = {n: k for k, n in enumerate(names)}
-    lo = np.min([g.index0 for g in grids], axis=0)
-    hi = np.max([g.index0 + np.asarray(g.labels.shape) for g in grids], axis=0)
-    shape = tuple(int(x) for x in hi - lo)
+    lo, shape = merged_box(grids)
     occupied = np.zeros(shape, bool)
     free = np.zeros(shape, bool)
     flats, classes = [], []
@@ -142,7 +173,7 @@ def merge_sparse(inputs: Sequence[SparseVoxels]) -> Grid:
     Returns
     -------
     Grid over the box of every listed voxel: listed voxels carry their class (254 when the most confident
-    entry has none), the rest 0.
+    entry has none), the rest 0. Inputs that together list no voxel are refused (PanovoccError).
     """
     if not inputs:
         raise PanovoccError("nothing to merge: no sparse inputs")
@@ -154,16 +185,13 @@ def merge_sparse(inputs: Sequence[SparseVoxels]) -> Grid:
     for s in inputs:
         remap = np.array([pos_of[canonical_name(str(n))] for n in s.class_names] + [OCCUPIED_UNKNOWN_CLASS], np.int64)
         lab = np.asarray(s.labels, np.int64)
-        idx.append(np.asarray(s.index, np.int64).reshape(-1, 3))
+        idx.append(_sparse_index(s))
         cls.append(remap[np.where(lab < 0, len(s.class_names), lab)])
         conf.append(np.asarray(s.confidence, np.float64).reshape(-1))
         order.append(rank + np.arange(len(lab), dtype=np.int64))
         rank += len(lab)
     idx, cls, conf, order = (np.concatenate(a) for a in (idx, cls, conf, order))
-    if len(idx) == 0:
-        return Grid(np.full((1, 1, 1), UNKNOWN, np.uint8), index_to_center(np.zeros(3, np.int64), h), h, names)
-    lo, hi = idx.min(axis=0), idx.max(axis=0) + 1
-    shape = tuple(int(x) for x in hi - lo)
+    lo, shape = merged_box(inputs)
     flat = np.ravel_multi_index(tuple((idx - lo).T), shape)
     # the most confident entry of each voxel; ties: the earlier entry (input order, then listing order)
     o = np.lexsort((order, -conf, flat))

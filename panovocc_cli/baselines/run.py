@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_STRIDE, MAX_VOXEL_SIZE, option, validate_config
+from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_SEED, MAX_STRIDE, MAX_VOXEL_SIZE, option, validate_config
 from ..errors import PanovoccError
 from ..geometry.cameras import TWELVE_PITCH_DEG
 from .single_pano import EMBODIEDOCC_BOX_M, VERTICAL
@@ -72,7 +72,7 @@ class BaselineConfig:
                                  "simulated when SEQ has labels, else none.")
     vocab: str | None = option(None, help="Vocabulary, as for map (e.g. eval8,open4); default eval8,open4.")
     noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Seed of the simulated segmenter's noise.")
     semantic_stride: int = option(0, min=0, max=MAX_STRIDE, help="The segmenter sees every s-th pixel, as for map; "
                                                                  "0 = auto, max(1, W // 512) (map's default).")
     fov_deg: float = option(90.0, min=10.0, max=170.0, help="persp-tsdf, forward-only: field of view of each "
@@ -142,9 +142,20 @@ def run_baseline(cfg: BaselineConfig) -> dict:
                             Path(cfg.seq) / "meta.json")
     if len(seq) == 0:
         raise PanovoccError("sequence has no frames", Path(cfg.seq) / "meta.json")
+    if cfg.name == "single-pano":
+        from ..runtime import check_memory
+        from .single_pano import single_pano_memory
+
+        n, need = single_pano_memory(box, cfg.voxel_size, seq.poses)
+        check_memory(need, f"--box {cfg.box} at {cfg.voxel_size:g} m ({n[0]}x{n[1]}x{n[2]} voxels a frame, {len(seq)} "
+                           "frames)", "choose a smaller --box or a larger --voxel-size")
     mc = _map_config(cfg, seq)
     check_output(cfg.out, "baseline", cfg.overwrite, inputs=(*map_inputs(mc), cfg.gt))
     gt = read_grid(cfg.gt) if cfg.gt is not None else None
+    if gt is not None:  # the per-frame scores' class set, checked before the first frame is mapped
+        from ..classes import parse_class_set
+
+        parse_class_set(cfg.classes, gt.class_names)
     frames = sequence_frames(mc, seq)  # the map's segmenter, built the map's way
     vocab = list(mc.semantic.vocab) if mc.semantic.enabled else []
     seq.check_files(("depth", "rgb") + (("semantic",) if mc.semantic.segmenter == "simulated" else ()))
@@ -280,7 +291,7 @@ def run_merge(cfg: MergeConfig) -> dict:
     if not cfg.inputs:
         raise PanovoccError("nothing to merge: give one prediction file per view sequence")
     config_path = check_file_output(cfg.out, "grid", cfg.overwrite, inputs=cfg.inputs)
-    names = parse_class_names(cfg.class_names) if cfg.class_names else None
+    names = parse_class_names(cfg.class_names) if cfg.class_names is not None else None
     read = [(Path(p), *read_prediction(Path(p), names, cfg.voxel_size)) for p in cfg.inputs]
     kinds = {k for _, k, _ in read}
     kind = cfg.kind
@@ -294,6 +305,12 @@ def run_merge(cfg: MergeConfig) -> dict:
         if k != kind:
             raise PanovoccError(f"is a {k} prediction; --kind {kind} expects {kind} inputs", p)
     items = [x for _, _, x in read]
+    from ..runtime import check_memory
+    from .merge import merge_memory
+
+    shape, need = merge_memory(items, kind)
+    check_memory(need, f"the inputs span a {shape[0]}x{shape[1]}x{shape[2]} grid, which",
+                 "check the inputs' voxel coordinates (a voxel far from the others)")
     grid = merge_dense(items) if kind == "dense" else merge_sparse(items)
     with output_file(cfg.out):
         write_grid(cfg.out, grid)

@@ -64,6 +64,30 @@ def box_voxels(size_m, voxel_size: float) -> tuple[int, int, int]:
     return n
 
 
+def single_pano_memory(size_m, voxel_size: float, T_world_cam) -> tuple[tuple[int, int, int], float]:
+    """Voxels per axis of one frame's box and the bytes :func:`single_pano` and the merge of its grids hold
+    at once, from the box and the poses alone (before any frame is mapped).
+
+    Every frame's uint8 grid is kept (``n`` frames x the box), and the merge (:func:`.merge.merge_dense`)
+    holds three bytes a voxel over the union of the boxes: the span of the camera centres plus a box on
+    each axis (two in height, where the floor may move a box down by its own height).
+
+    Parameters
+    ----------
+    size_m : (3,) float, metres; voxel_size : h, metres; T_world_cam : (n, 4, 4) float64 poses
+
+    Returns
+    -------
+    shape : (3,) int, voxels of one box; need : float, bytes (may be far beyond any machine, or inf)
+    """
+    n = box_voxels(size_m, voxel_size)
+    c = np.asarray(T_world_cam, np.float64).reshape(-1, 4, 4)[:, :3, 3] / voxel_size
+    span = np.ptp(c, axis=0) if len(c) else np.zeros(3)
+    union = span + np.asarray(n, np.float64) * np.array([1.0, 1.0, 2.0]) + 1.0
+    cells = float(np.prod(np.asarray(n, np.float64)))
+    return n, cells * (len(c) + 1) + 3.0 * float(np.prod(union))
+
+
 def local_box(T_world_cam: np.ndarray, grid: Grid, size_m=EMBODIEDOCC_BOX_M, vertical: str = "floor") -> LocalBox:
     """The local box of one frame (module docstring) given the frame's own grid ``grid``.
 

@@ -21,6 +21,8 @@ from ._app import app
 from .options import OptionValues, config_command
 
 QUERY_OUTPUTS = (".json", ".ply", ".png")
+#: relabel: the column of the evidence of the stored classes that no new word takes (exported as 254).
+UNMATCHED = "(no new word)"
 #: Colours of query pictures and point clouds: voxels that do not match, and the score ramp's ends.
 OTHER_COLOR = (170, 170, 170)
 MATCH_LOW, MATCH_HIGH = (255, 210, 60), (200, 20, 20)
@@ -55,7 +57,8 @@ class RelabelConfig:
     vocab: str = option(help="New vocabulary: words, comma-separated; NAME=old1+old2 merges stored classes "
                         "explicitly (e.g. 'bed,seating=chair+sofa,floor,wall').")
     min_similarity: float = option(DEFAULT_RELABEL_SIMILARITY, min=-1.0, max=1.0, help="Text cosine a stored class "
-                                   "needs to its most similar new word to go to it.")
+                                   "needs to its most similar new word to go to it; voxels won by classes that go "
+                                   "to no word get no class (254).")
     overwrite: bool = option(False, help="Replace an existing NEW.npz (never an input).")
 
 
@@ -200,15 +203,18 @@ def _top_view(pts, cols, mask, clusters, result, h):
 def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     """Write the map's grid under a new vocabulary its stored evidence supports.
 
-    The stored evidence ``E (n, C_old)`` becomes ``E @ M`` (:func:`semantics.query.relabel_matrix`), and the
+    The stored evidence ``E (n, C_old)`` becomes ``E @ M`` (:func:`semantics.query.relabel_matrix`), plus one
+    column holding the evidence of the stored classes no new word takes (below ``min_similarity``), and the
     map's own export (occupancy rule, GSC, nearest-evidence transfer) labels the occupied voxels with the
-    new words. Returns a summary: ``vocab``, ``sources`` per new word, ``classed`` voxels per new word.
+    new words; a voxel that column wins is occupied without a class (254). Returns a summary: ``vocab``,
+    ``sources`` per new word, ``classed`` voxels per new word, ``unclassed`` occupied voxels without one.
     """
     import dataclasses
 
     import numpy as np
 
     from ..classes import canonical_name
+    from ..grid import OCCUPIED_UNKNOWN_CLASS, Grid
     from ..io.atomic import output_file
     from ..io.grid import write_grid
     from ..io.runconfig import check_file_output, write_run_config
@@ -230,21 +236,29 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
         if needs_text and encode is None:
             encode = minilm_encoder()
         M, sources = relabel_matrix(stored, new, encode, cfg.min_similarity)
+        # the stored classes no new word takes keep their evidence in one more column, so the voxels that
+        # evidence wins come out without a class (254), not with the best of the new words
+        M = np.concatenate([M, (~M.any(axis=1))[:, None].astype(np.int64)], axis=1)
         keys, ch = mapper.memory.nonzero()
         ch = dict(ch)
         ch["E"] = np.asarray(ch["E"], np.int64) @ M
         words = [w for w, _ in new]
-        mcfg = dataclasses.replace(mapper.config, vocab=words)
-        ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, words, mcfg,
+        mcfg = dataclasses.replace(mapper.config, vocab=words + [UNMATCHED])
+        ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, mcfg.vocab, mcfg,
                            origin_index=mcfg.origin_index())
     finally:
         mapper.close()
+    labels = ex.grid.labels.copy()
+    labels[labels == len(words) + 1] = OCCUPIED_UNKNOWN_CLASS
+    grid = Grid(labels, ex.grid.origin, ex.grid.voxel_size, list(ex.grid.class_names)[:-1])
     with output_file(cfg.out_npz):
-        write_grid(cfg.out_npz, ex.grid)
+        write_grid(cfg.out_npz, grid)
     write_run_config(config_path, cfg)
-    counts = np.bincount(ex.labels[ex.labels >= 0], minlength=len(words)) if ex.labels is not None else np.zeros(len(words))
+    lab = ex.labels if ex.labels is not None else np.full(len(ex.occupied_keys), -1)
+    counts = np.bincount(lab[lab >= 0], minlength=len(words) + 1)
     return {"vocab": words, "sources": {w: [[s, c] for s, c in v] for w, v in sources.items()},
-            "classed": {w: int(n) for w, n in zip(words, counts)}, "occupied": int(len(ex.occupied_keys))}
+            "classed": {w: int(n) for w, n in zip(words, counts)}, "unclassed": int(len(lab) - counts[:-1].sum()),
+            "occupied": int(len(ex.occupied_keys))}
 
 
 def format_query(res: dict) -> str:
@@ -287,7 +301,7 @@ def relabel(o: OptionValues) -> None:
     for w in res["vocab"]:
         src = ", ".join(f"{s}" + ("" if c == 1.0 else f" ({c:.2f})") for s, c in res["sources"][w])
         typer.echo(f"{w:<16} <- {src:<40} {res['classed'][w]:>7} voxels")
-    typer.echo(f"wrote {o['out_npz']} ({res['occupied']} occupied voxels)")
+    typer.echo(f"wrote {o['out_npz']} ({res['occupied']} occupied voxels, {res['unclassed']} without a class)")
 
 
 __all__ = ["QueryConfig", "RelabelConfig", "run_query", "run_relabel", "format_query"]

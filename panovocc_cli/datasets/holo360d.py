@@ -23,6 +23,11 @@ from .pose_check import (CHECK_PAIRS, CHECK_SAMPLES, CHECK_TOL_M, CHECK_TOL_REL,
                          convention_report, depth_agreement)
 
 
+#: Bytes a converted pixel holds at once: RGB (3) and float depth (4), their resized copies, and the PNG and
+#: EXR encoders' buffers (the estimate of ``--width``'s memory check).
+BYTES_PER_PIXEL = 16
+
+
 @dataclass
 class ConvertHolo360dConfig:
     """Options of ``panovocc convert holo360d``."""
@@ -85,6 +90,13 @@ def run_convert_holo360d(cfg: ConvertHolo360dConfig) -> dict:
     poses = np.stack([holo_pose(t, R, cfg.pose_form, cfg.camera_axes) for t, R in lines])
     pairs = check_pairs(len(scene.stems)) if cfg.check else []
     keep = {i for p in pairs for i in p}
+    if cfg.width:  # a resized frame (and every depth the check keeps) must fit before anything is written
+        from ..runtime import check_memory
+
+        pixels = float(cfg.width) * (cfg.width // 2)
+        check_memory(pixels * (BYTES_PER_PIXEL + 4 * len(keep)), f"--width {cfg.width} ({cfg.width}x{cfg.width // 2}"
+                     f" panoramas{', ' + str(len(keep)) + ' depths kept for --check' if keep else ''})",
+                     "choose a smaller --width")
     depths: dict[int, np.ndarray] = {}
     size = None
     with atomic_dir(cfg.out) as tmp:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import canonical_name
-from ..config import DEFAULT_SEED, option, validate_config
+from ..config import DEFAULT_SEED, MAX_SEED, option, validate_config
 from ..errors import PanovoccError
 
 
@@ -34,7 +34,7 @@ class SynthConfig:
 
     out: Path = option(argument=True, metavar="SCENE", help="Scene folder to write (Replica layout: "
                        "habitat/mesh_semantic.ply, habitat/info_semantic.json, traj.txt).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Random seed; the same seed gives the same files.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Random seed; the same seed gives the same files.")
     rooms: int | None = option(None, min=1, max=60, help="Number of rooms, 1-6 (default: 2 or 3 from the seed); "
                                "with --house 6-8 off a corridor (default: 6, 7 or 8 from the seed); with --building "
                                "2-60 a floor (default: as many as 2,500 m² of floor need).")

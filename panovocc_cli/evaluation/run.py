@@ -20,8 +20,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..config import validate_config
-from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_VOXEL_SIZE, option
+from ..config import COVERAGE_TOL_M, DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_PICTURE_PX, MAX_SEED, MAX_VOXEL_SIZE, option
 from ..errors import PanovoccError
+from ..grid import EMPTY, UNKNOWN
 from ..io.atomic import check_output, output_file, output_folder, write_text
 from ..io.grid import read_grid, write_grid
 from ..io.runconfig import check_file_output, write_run_config
@@ -71,6 +72,9 @@ def run_eval(cfg: EvalConfig) -> dict[str, Any]:
     per_pair = []
     for pred_path, gt_path in cfg.pairs:
         pred, gt = read_grid(pred_path), read_grid(gt_path)
+        if not np.any((gt.labels != EMPTY) & (gt.labels != UNKNOWN)):
+            raise PanovoccError("the ground truth has no occupied voxel (every label is 0 or 255): nothing to score",
+                                gt_path)
         try:
             res = evaluate([(pred, gt)], cfg.classes, {"pred": str(pred_path), "gt": str(gt_path),
                                                        "voxel_size": gt.voxel_size})
@@ -319,7 +323,7 @@ def run_convert_replicaocc(cfg: ConvertReplicaOccConfig):
     cfg = validate_config(cfg)
     names_file = Path(cfg.class_names) if cfg.class_names and "," not in cfg.class_names else None
     check_output(cfg.out_npz, "grid", cfg.overwrite, inputs=(cfg.pkl, names_file), folder=False)
-    names = parse_class_names(cfg.class_names) if cfg.class_names else None
+    names = parse_class_names(cfg.class_names) if cfg.class_names is not None else None
     data = load_pickle(cfg.pkl)
     grid, shift = replicaocc_to_grid(data, names, cfg.voxel_size, cfg.tol_m, cfg.allow_shift, cfg.pkl)
     with output_file(cfg.out_npz):
@@ -386,7 +390,7 @@ class SegevalConfig:
     segmenter: str = option("simulated", help="Segmenter to score: simulated | precomputed:DIR.")
     vocab: object = option(None, cli_type=str, help="Vocabulary (as for map); default eval8,open4.")
     noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Seed of the simulated segmenter's noise.")
     classes: str = option("eval8", help="Scored class set: eval8 | open4 | eval12 | comma list (a,b,c).")
     every: int = option(1, min=1, help="Score every K-th frame (frames 0, K, 2K, ...).")
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, MATCH_MAX_DIFF, option, validate_config
+from ..config import DEFAULT_SEED, MATCH_MAX_DIFF, MAX_SEED, option, validate_config
 from ..errors import PanovoccError, printable
 from .trajectory import ALIGNMENTS, TrajectoryResult, evaluate_trajectory
 
@@ -55,18 +55,18 @@ class TrajPerturbConfig:
                      help="Trajectory to perturb (TUM or NICE-SLAM form).")
     out: str = option(cli_type=Path, parse=str, argument=True, metavar="OUT",
                       help="Output trajectory: TUM when it ends in .tum, else NICE-SLAM form.")
-    drift: float = option(0.0, min=0, help="Translation random walk: std per axis of each step's error, "
+    drift: float = option(0.0, min=0, max=100, help="Translation random walk: std per axis of each step's error, "
                                           "metres per sqrt(frame).")
-    drift_per_m: float = option(0.0, min=0, help="Translation error per metre travelled: std per axis of "
+    drift_per_m: float = option(0.0, min=0, max=100, help="Translation error per metre travelled: std per axis of "
                                                 "each step's error / step length (0.01 = 1 %).")
-    rot_drift_deg: float = option(0.0, min=0, help="Rotation random walk: std per axis of each step's "
+    rot_drift_deg: float = option(0.0, min=0, max=180, help="Rotation random walk: std per axis of each step's "
                                                   "rotation error, degrees per frame.")
     jitter: float = option(0.0, min=0, max=100, help="Per-frame translation jitter: std per camera axis of each "
                                                      "frame's own error, metres (not accumulated).")
     rot_jitter_deg: float = option(0.0, min=0, max=180, help="Per-frame rotation jitter: std per camera axis of "
                                                              "each frame's own rotation error, degrees.")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the drift and the jitter; the same seed gives the same "
-                                                 "file.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED,
+                       help="Seed of the drift and the jitter; the same seed gives the same file.")
 
 
 def associate(stamps_est, stamps_ref, max_diff: float) -> tuple[np.ndarray, np.ndarray]:

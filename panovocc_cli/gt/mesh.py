@@ -138,22 +138,6 @@ def voxel_areas(q, faces, face_class):
 BYTES_PER_PIECE = 120  # voxel_areas' records (36 B, grown by doubling) and the per-voxel vote arrays after it
 
 
-def available_memory() -> int:
-    """Bytes of memory available to a new allocation (``MemAvailable`` of /proc/meminfo; else physical)."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        import os
-
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return 1 << 62
-
-
 def gt_memory_estimate(scene, voxel_size: float) -> tuple[tuple[int, int, int], int]:
     """Grid shape and bytes :func:`voxelize_scene` would need at ``voxel_size`` metres, before allocating.
 
@@ -169,12 +153,11 @@ def gt_memory_estimate(scene, voxel_size: float) -> tuple[tuple[int, int, int], 
 
 def check_gt_memory(scene, voxel_size: float) -> None:
     """Refuse a voxel size whose grid cannot fit in the memory available now (one line with the size needed)."""
+    from ..runtime import check_memory
+
     shape, need = gt_memory_estimate(scene, voxel_size)
-    have = available_memory()
-    if need > 0.8 * have:
-        raise PanovoccError(f"--voxel-size {voxel_size:g} m needs a {shape[0]}x{shape[1]}x{shape[2]} grid and about "
-                            f"{need / 2 ** 30:.1f} GiB of memory; {have / 2 ** 30:.1f} GiB is available: choose a "
-                            "larger voxel size")
+    check_memory(need, f"--voxel-size {voxel_size:g} m: a {shape[0]}x{shape[1]}x{shape[2]} grid",
+                 "choose a larger voxel size")
 
 
 def voxelize_scene(scene, voxel_size: float = DEFAULT_VOXEL_SIZE) -> Grid:

@@ -14,7 +14,6 @@ from ..errors import PanovoccError
 from ..gt_config import GtConfig
 from .consensus import BYTES_PER_VOXEL, ConsensusLift
 from .lifted import depth_bounds, parse_annotated
-from .mesh import available_memory
 
 
 def run_gt(cfg: GtConfig) -> dict:
@@ -73,6 +72,7 @@ def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) ->
     from ..geometry.lattice import point_to_index
     from ..io.images import check_image_header
     from ..io.sequence import frame_stem
+    from ..runtime import check_memory
 
     if seq.meta.camera != "erp":
         raise PanovoccError(f"camera {seq.meta.camera!r}: the lifted ground truth needs an ERP sequence",
@@ -98,11 +98,8 @@ def accumulate_sequence(seq, voxel_size: float, lift, progress: bool = False) ->
     i0 = point_to_index(lo, h)
     shape = point_to_index(hi, h) - i0 + 1
     need = float(np.prod(shape.astype(np.float64))) * (BYTES_PER_VOXEL + 2)
-    have = available_memory()
-    if need > 0.8 * have:
-        raise PanovoccError(f"the depth spans a {shape[0]}x{shape[1]}x{shape[2]} grid at {h:g} m, about "
-                            f"{need / 2 ** 30:.1f} GiB; {have / 2 ** 30:.1f} GiB is available: choose a larger "
-                            "--voxel-size or a --max-range", seq.root)
+    check_memory(need, f"the depth spans a {shape[0]}x{shape[1]}x{shape[2]} grid at {h:g} m, which",
+                 "choose a larger --voxel-size or a --max-range", seq.root)
     acc = ConsensusLift(i0, shape, h, len(seq.meta.class_names), lift.max_range, min_points=lift.min_points,
                         min_frames=lift.min_frames, min_hit_ratio=lift.min_hit_ratio, surface_tol=lift.surface_tol,
                         surface_tol_r2=lift.surface_tol_r2)

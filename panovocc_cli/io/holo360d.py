@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PanovoccError
+from ..geometry.poses import check_rigid
 
 R_AXES = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 """p_holo = R_AXES @ p_ours (Holo360D's z-up camera frame from the toolkit's OpenCV one)."""
@@ -48,7 +49,8 @@ def read_holo_poses(folder: str | Path) -> dict[str, tuple[np.ndarray, np.ndarra
 
     Raises
     ------
-    PanovoccError naming the file and line of a malformed entry, a stem given twice, or no pose at all.
+    PanovoccError naming the file and line of a malformed entry, a rotation that is not one (not
+    orthonormal with det +1: ``geometry.poses.check_rigid``), a stem given twice, or no pose at all.
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -75,6 +77,9 @@ def read_holo_poses(folder: str | Path) -> dict[str, tuple[np.ndarray, np.ndarra
             stem = Path(parts[0]).stem
             if stem in out:
                 raise PanovoccError(f"line {n}: a second pose for {stem!r}", path)
+            M = np.eye(4)
+            M[:3, :3], M[:3, 3] = v[3:].reshape(3, 3), v[:3]  # R is a rotation in every pose form (or R.T is)
+            check_rigid(M, what=f"{path}: line {n} (frame {stem})")
             out[stem] = (v[:3], v[3:].reshape(3, 3))
     if not out:
         raise PanovoccError("no pose lines in poses/*.txt (expected a header line, then name tx ty tz r1..r9)", folder)
@@ -182,9 +187,9 @@ def read_holo_frame(scene: HoloScene, stem: str, use_mask: bool = True) -> tuple
     ------
     PanovoccError when a file cannot be decoded, the panorama is not 2:1, or the images differ in size.
     """
-    from .images import read_exr, read_image
+    from .images import read_exr, read_image, read_rgb
 
-    rgb = read_image(scene.rgb[stem], "color")
+    rgb = read_rgb(scene.rgb[stem])
     depth = read_exr(scene.depth[stem])
     h, w = rgb.shape[:2]
     if w != 2 * h:

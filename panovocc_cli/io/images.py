@@ -92,8 +92,43 @@ def write_png(path: str | Path, image: np.ndarray, compression: int = 1) -> None
             f.write(buf.tobytes())
 
 
+def _is_greyscale(head: bytes) -> bool:
+    """Whether an image file's first bytes say it has no colour: a PNG of colour type 0 or 4 (grey, grey +
+    alpha; a palette image is colour), or a JPEG whose frame header (SOF) has one component."""
+    if head[:8] == PNG_SIGNATURE:
+        return len(head) > 25 and head[25] in (0, 4)
+    if head[:2] != b"\xff\xd8":
+        return False
+    pos = 2
+    while pos + 9 < len(head):
+        if head[pos] != 0xFF:
+            return False
+        marker = head[pos + 1]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7 or marker == 0xFF:
+            pos += 1 if marker == 0xFF else 2
+            continue
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame: its component count
+            return head[pos + 9] == 1
+        pos += 2 + int.from_bytes(head[pos + 2:pos + 4], "big")
+    return False
+
+
+def check_colour(path: str | Path) -> None:
+    """Refuse an image that is greyscale where a colour (RGB) image is expected (:func:`_is_greyscale`; only
+    the file's first 64 KiB are read)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except FileNotFoundError:
+        raise PanovoccError("file not found", path) from None
+    if _is_greyscale(head):
+        raise PanovoccError("image is greyscale; expected a colour (RGB) image", path)
+
+
 def read_rgb(path: str | Path, shape: tuple[int, int] | None = None) -> np.ndarray:
-    """RGB image (H, W, 3) uint8; ``shape`` = (H, W) is checked when given."""
+    """RGB image (H, W, 3) uint8; ``shape`` = (H, W) is checked when given. A greyscale file is refused
+    (:func:`check_colour`): colour is expected, and a grey one is most likely another modality's image."""
+    check_colour(path)
     img = read_image(path, "color")
     if shape is not None and img.shape[:2] != tuple(shape):
         raise PanovoccError(f"image is {img.shape[1]}x{img.shape[0]}, expected {shape[1]}x{shape[0]}", path)
@@ -172,7 +207,8 @@ def png_header(path: str | Path) -> tuple[int, int, int, int]:
 def check_image_header(path: str | Path, role: str, shape: tuple[int, int] | None = None) -> None:
     """Cheap check of a frame image before any work: readable header, size ``shape`` = (H, W), and the
     type its ``role`` needs (``rgb``; ``depth``: 16-bit single channel; ``labels``: 8/16-bit single
-    channel). Only PNG headers are parsed; JPEG/EXR files are checked for existence and non-zero size."""
+    channel; ``rgb``: colour, :func:`check_colour`). Only PNG headers are parsed; JPEG/EXR files are checked for
+    existence, non-zero size and (``rgb``) a JPEG's component count."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         try:
@@ -180,6 +216,8 @@ def check_image_header(path: str | Path, role: str, shape: tuple[int, int] | Non
                 raise PanovoccError("file is empty", path)
         except FileNotFoundError:
             raise PanovoccError("file not found", path) from None
+        if role == "rgb":
+            check_colour(path)
         return
     w, h, depth, ch = png_header(path)
     if shape is not None and (h, w) != tuple(shape):
@@ -187,6 +225,8 @@ def check_image_header(path: str | Path, role: str, shape: tuple[int, int] | Non
     if role == "depth" and (depth != 16 or ch != 1):
         raise PanovoccError(f"depth PNG is {depth}-bit with {ch} channel(s); expected 16-bit single-channel "
                             "(depth x depth_scale)", path)
+    if role == "rgb":
+        check_colour(path)
     if role == "labels" and (depth not in (8, 16) or ch != 1):
         raise PanovoccError(f"label PNG is {depth}-bit with {ch} channel(s); expected 8/16-bit single-channel", path)
 

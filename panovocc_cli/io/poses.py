@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import MATCH_MAX_DIFF
+from ..config import MATCH_MAX_DIFF, MAX_POSITION_M
 from ..errors import PanovoccError
 from ..geometry.poses import check_rigid, quat_to_rot, rot_to_quat
 from .atomic import write_text
@@ -51,8 +51,16 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
     stamps : (N,) float64
         TUM: the file's first column (seconds, or frame indices as ``write_tum`` writes them);
         NICE-SLAM: the line's position 0 .. N-1 (a frame index).
-    T_world_cam : (N, 4, 4) float64, each checked rigid
+    T_world_cam : (N, 4, 4) float64, each checked rigid, camera coordinates within
+        :data:`~panovocc_cli.config.MAX_POSITION_M` metres
     form : ``"tum"`` or ``"nice-slam"``
+
+    Raises
+    ------
+    PanovoccError
+        One line naming the file and line: not numbers, a ragged line, a bad quaternion, a pose that is not
+        rigid, a coordinate beyond ``MAX_POSITION_M``, or a TUM timestamp given twice (which pose would be
+        that time's?).
     """
     path = Path(path)
     rows = _rows(path)
@@ -61,7 +69,7 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
         raise PanovoccError(
             f"line {rows[0][0]}: {width} numbers; expected 16 (T_world_cam row-major, NICE-SLAM form) "
             "or 8 (TUM form: t tx ty tz qx qy qz qw)", path)
-    poses, stamps = [], []
+    poses, stamps, line_of = [], [], {}
     for n, parts in rows:
         if len(parts) != width:
             raise PanovoccError(f"line {n}: {len(parts)} numbers, expected {width} like line {rows[0][0]}", path)
@@ -80,8 +88,15 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
             T[:3, 3] = vals[1:4]
             if not np.isfinite(vals[0]):
                 raise PanovoccError(f"line {n}: timestamp {parts[0]} is not a finite number", path)
+            if vals[0] in line_of:
+                raise PanovoccError(f"line {n}: timestamp {parts[0]} repeats line {line_of[vals[0]]}; expected "
+                                    "one pose per timestamp", path)
+            line_of[vals[0]] = n
         stamps.append(vals[0] if width == 8 else float(len(stamps)))
         poses.append(check_rigid(T, what=f"{path}: line {n}"))
+        if np.abs(T[:3, 3]).max() > MAX_POSITION_M:
+            raise PanovoccError(f"line {n}: camera position {T[:3, 3].tolist()} m is beyond {MAX_POSITION_M:g} m "
+                                "of the origin (expected metres)", path)
     return np.array(stamps, np.float64), np.stack(poses), ("tum" if width == 8 else "nice-slam")
 
 

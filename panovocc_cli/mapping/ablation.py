@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, option, typed_from_json
+from ..config import DEFAULT_SEED, MAX_SEED, option, typed_from_json
 from ..errors import PanovoccError
 
 
@@ -43,7 +43,7 @@ class AblationParams:
                                                             "(0 with --drift-trans-m 0: no perturbation).")
     drift_trans_m: float = option(0.0, min=0, max=1, help="Ablation schedule: translation drift per square-root "
                                                            "frame, metres.")
-    drift_seed: int = option(DEFAULT_SEED, min=0, help="Ablation schedule: seed of the drift.")
+    drift_seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Ablation schedule: seed of the drift.")
     correct_every: int = option(10, min=1, help="Ablation schedule: true poses arrive as revisions after every K "
                                                 "frames.")
 

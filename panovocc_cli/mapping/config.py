@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_SEED, MAX_STRIDE, option, typed_from_json
+from ..config import DEFAULT_SEED, MAX_SEED, MAX_STRIDE, option, typed_from_json
 from ..errors import PanovoccError
 from ..geometry.lattice import local_origin
 from ..semantics.gsc import GSCParams
@@ -73,7 +73,7 @@ class SemanticParams:
                                                     "default eval8,open4.")
     noise: float = option(1.0, min=0, help="Simulated segmenter noise level (dimensionless; 1 = default realistic "
                                            "errors, 0 = exact).")
-    seed: int = option(DEFAULT_SEED, min=0, help="Seed of the simulated segmenter's noise.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Seed of the simulated segmenter's noise.")
     use_gsc: bool = option(True, flag="--no-gsc", negate=True, help="Ablation: raw argmax of the fused evidence, no GSC.")
     ply_color: str = option("class", choices=PLY_COLORS, help="map.ply colours: class (class colours, grey = no class) "
                                                               "| rgb (mean pixel colour) | height.")

@@ -37,7 +37,7 @@ from ..io import mapstore
 from ..io.atomic import check_outputs, clean_temporaries, write_text
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
-from ..io.poses import frame_poses, read_poses, write_poses
+from ..io.poses import frame_poses, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
 from .config import (PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig, MapperConfig, ReviseConfig,
@@ -304,7 +304,8 @@ def _check_inputs(cfg: MapConfig, seq: Sequence) -> None:
 
     spec = cfg.semantic.segmenter if cfg.semantic.enabled else ""
     labels = ("semantic",) if spec == "simulated" or (seq.root / "semantic").is_dir() else ()
-    seq.check_files(("depth",) + (("rgb",) if spec else ()) + labels)
+    rgb = ("rgb",) if spec or (seq.root / "rgb").is_dir() else ()  # colours are read even without a segmenter
+    seq.check_files(("depth",) + rgb + labels)
     if spec.startswith("precomputed:"):
         from ..classes import canonical_name
         from ..io.precomputed import read_vocab_json
@@ -545,8 +546,9 @@ def run_revise(cfg: ReviseConfig | str | Path, poses_path: str | Path | None = N
     Called as ``run_revise(ReviseConfig(out, poses))`` or, as before, ``run_revise(out, poses_path,
     progress)``.
 
-    ``poses_path`` is a full pose file (one pose per frame); the pose file the map was made with is not
-    read. Order of writes (:mod:`.rpu`): new deltas to staging names, then memory.npz (the commit point, it
+    ``poses_path`` is a full pose file (one pose per frame), read as ``map --poses`` reads it
+    (:func:`~panovocc_cli.io.poses.frame_poses`: NICE-SLAM line i is frame i, TUM timestamps matched to the
+    frame indices); the pose file the map was made with is not read. Order of writes (:mod:`.rpu`): new deltas to staging names, then memory.npz (the commit point, it
     stores the poses), then the staged deltas renamed in place, then poses.txt, prediction.npz, map.ply.
     A run killed after the commit is completed by the next ``revise`` (staged deltas are rolled forward).
     """
@@ -562,8 +564,8 @@ def run_revise(cfg: ReviseConfig | str | Path, poses_path: str | Path | None = N
 
 def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     cfg = load_config(out)
-    new_poses = read_poses(poses_path)
     n_seq = read_meta(cfg.seq).frames
+    new_poses = frame_poses(poses_path, n_seq)  # map --poses's reader: TUM lines matched to frames by timestamp
     mapper = Mapper.load(out)
     try:
         k = len(mapper)

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from ..classes import canonical_name
-from ..config import DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MIN_WIDTH, NOISE_MODELS, option, validate_config
+from ..config import (DEFAULT_SEED, DEFAULT_WIDTH, DEPTH_SCALE, MAX_SEED, MIN_WIDTH, NOISE_MODELS, option,
+                      validate_config)
 from ..errors import PanovoccError
 
 BACKENDS = ("raycast", "pyrender")
@@ -44,7 +45,7 @@ class RenderConfig:
     every: int = option(1, min=1, help="Render every k-th pose.")
     noise: str = option("none", choices=NOISE_MODELS, help="none, or realistic: range-dependent depth noise (metres), "
                         "dropouts, no depth on glass, edge bleeding.")
-    seed: int = option(DEFAULT_SEED, min=0, help="Noise seed.")
+    seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED, help="Noise seed.")
     threads: int = option(0, min=0, help="Ray-casting threads (0 = all cores).")
     progress: bool = True
     overwrite: bool = option(False, help="Replace a previous panovocc sequence in SEQ (never any other folder, "

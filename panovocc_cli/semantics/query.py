@@ -117,7 +117,9 @@ def match_classes(query: str, vocab: Sequence[str], encode: TextEncoder, *, min_
     min_similarity : cosine a word needs to be matched; margin : matched words lie within this cosine of
         the best; temperature : softmax temperature of the weights (cosine units)
     """
-    q = query.strip()
+    from ..classes import check_text
+
+    q = check_text(query, "the query").strip()
     if not q:
         raise PanovoccError("the query is empty; expected words, e.g. 'a place to sleep'")
     vocab = list(vocab)
@@ -242,10 +244,10 @@ def find_clusters(keys: np.ndarray, mask: np.ndarray, scores: np.ndarray, labels
 def parse_relabel_vocab(spec: str) -> list[tuple[str, list[str]]]:
     """``"seating=chair+sofa,bed,floor"`` -> ``[("seating", ["chair", "sofa"]), ("bed", []), ("floor", [])]``
     (names canonical; an empty list = match by name or similarity)."""
-    from ..classes import canonical_name
+    from ..classes import canonical_name, check_text
 
     out, seen = [], set()
-    for part in (spec or "").split(","):
+    for part in check_text(spec or "", "the new vocabulary (--vocab)").split(","):
         part = part.strip()
         if not part:
             continue
@@ -259,6 +261,9 @@ def parse_relabel_vocab(spec: str) -> list[tuple[str, list[str]]]:
         old = [canonical_name(o.strip()) for o in olds.split("+") if o.strip()] if olds else []
         if sep and not old:
             raise PanovoccError(f"{part!r}: expected NAME=old1+old2 with classes of the map after '='")
+        twice = sorted({o for o in old if old.count(o) > 1})
+        if twice:
+            raise PanovoccError(f"{part!r} names {twice[0]!r} twice; expected each stored class once")
         out.append((name, old))
     if not out:
         raise PanovoccError("the new vocabulary is empty; expected e.g. 'bed,seating=chair+sofa,floor'")

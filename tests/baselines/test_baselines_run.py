@@ -180,12 +180,25 @@ def test_single_pano_frames_and_per_frame_scores(room, tmp_path, cli):
     (["single-pano", "{room}", "{t}/o", "--gt", "{t}/no.npz"], "not found"),
     (["persp-tsdf", "{room}", "{room}"], "input"),
     (["forward-only", "{room}", "{t}/o", "--gt", "{room}/meta.json"], "panovocc eval"),
+    (["single-pano", "{room}", "{t}/o", "--box", "1e9,1e9,1e9"], "GiB of memory"),  # estimated before any frame
+    (["single-pano", "{room}", "{t}/o", "--box", "1e300,1,1"], "--box"),
+    (["single-pano", "{room}", "{t}/o", "--gt", "{t}/g.npz", "--classes", ""], "empty class list"),
 ])
-def test_bad_inputs_write_nothing(room, tmp_path, cli, argv, expect):
+def test_bad_inputs_write_nothing(room, tmp_path, cli, argv, expect, monkeypatch):
+    from panovocc_cli.geometry.lattice import index_to_center
+    from panovocc_cli.io.grid import write_grid
+
+    write_grid(tmp_path / "g.npz", Grid(np.ones((4, 4, 4), np.uint8), index_to_center(np.zeros(3, np.int64), H), H,
+                                        ["empty", "wall"]))
+    import panovocc_cli.baselines.single_pano as sp
+    monkeypatch.setattr(sp, "single_pano", lambda *a, **k: (_ for _ in ()).throw(AssertionError("mapped a frame")))
+    # (every refusal comes before the first frame is mapped)
     before = sorted(p.name for p in room.rglob("*"))
     code, _, err = cli(["baselines", "run", *[a.format(room=room, t=tmp_path) for a in argv], "--quiet"])
     assert code == 2 and expect.lower() in err.lower() and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "o").exists() and sorted(p.name for p in room.rglob("*")) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.npz"]
 
 
 def test_poses_align_undoes_a_rigid_motion_of_the_trajectory(room, tmp_path, cli):

@@ -130,3 +130,26 @@ def test_cli_merge_dense_pickle_and_sparse(tmp_path, cli):
     (tmp_path / "evil.pkl").write_bytes(pickle.dumps(object()))
     code, _, err = cli(["baselines", "merge", tmp_path / "z.npz", tmp_path / "evil.pkl"])
     assert code == 2 and "evil.pkl" in err and not (tmp_path / "z.npz").exists()
+
+
+def test_cli_merge_refuses_a_far_voxel_empty_sparse_inputs_and_empty_class_names(tmp_path, cli):
+    """A sparse input with one voxel 1e7 m away would need petabytes of grid: one line before the merge.
+    Sparse inputs that list no voxel at all are refused; one empty input beside others adds nothing.
+    ``--class-names ''`` is an empty list, refused (not FreeOcc's list by default)."""
+    from panovocc_cli.io.replicaocc import write_replicaocc
+
+    write_sparse_voxels(tmp_path / "far.npz", np.array([[0.04, 0.04, 0.04], [1e7, 1e7, 1e7]]), H, ["sofa"],
+                        scores=np.array([[0.9], [0.8]]))
+    write_sparse_voxels(tmp_path / "none.npz", np.zeros((0, 3)), H, ["sofa"], scores=np.zeros((0, 1)))
+    write_sparse_voxels(tmp_path / "one.npz", np.array([[0.12, 0.04, 0.04]]), H, ["chair"], scores=np.array([[0.7]]))
+    write_replicaocc(tmp_path / "b.pkl", grid([2, 255, 2], 0, ["floor", "wall"]))
+    for argv, expect in ((["far.npz"], "GiB of memory"), (["none.npz"], "no voxel"),
+                         (["none.npz", "none.npz"], "no voxel"), (["b.pkl", "--class-names", ""], "no class names")):
+        code, _, err = cli(["baselines", "merge", tmp_path / "m.npz", *[tmp_path / a if a.endswith(("z", "l")) else a
+                                                                         for a in argv]])
+        assert code == 2 and expect in err and len(err.strip().splitlines()) == 1, (argv, err)
+        assert not (tmp_path / "m.npz").exists() and not (tmp_path / "m.config.json").exists()
+    code, _, err = cli(["baselines", "merge", tmp_path / "m.npz", tmp_path / "none.npz", tmp_path / "one.npz"])
+    assert code == 0, err
+    m = read_grid(tmp_path / "m.npz")
+    assert m.labels.shape == (1, 1, 1) and name_at(m, 1) == "chair"

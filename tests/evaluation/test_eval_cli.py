@@ -60,7 +60,8 @@ def test_eval_bad_inputs_exit_2(capsys, tmp_path, pair):
     coarse = read_grid(gt)
     write_grid(tmp_path / "coarse.npz", Grid(coarse.labels, np.full(3, 0.05), 0.1, coarse.class_names))
     for args in ([pred, tmp_path / "missing.npz"], [pred], [pred, tmp_path / "coarse.npz"],
-                 [pred, gt, "--mask", "nope"], [pred, gt, "--pair", pred], [pred, gt, "--classes", " , "]):
+                 [pred, gt, "--mask", "nope"], [pred, gt, "--pair", pred], [pred, gt, "--classes", " , "],
+                 [pred, gt, "--classes", ""]):
         code, out, err = run(capsys, "eval", *args)
         assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, (args, err)
 
@@ -222,3 +223,17 @@ def test_eval_prints_both_miou_rules_when_a_class_is_absent(capsys, pair):
     assert r["miou_present"] == pytest.approx((r["per_class"]["wall"] + r["per_class"]["floor"]) / 2)
     code, out, _ = run(capsys, "eval", pred, gt, "--classes", "wall,floor")  # nothing absent: one mIoU line
     assert code == 0 and "present only" not in out
+
+
+def test_eval_refuses_a_ground_truth_with_no_occupied_voxel(capsys, tmp_path, pair):
+    """A ground truth whose labels are all 0 (or 0 and 255) has nothing to score: refused on one line naming
+    it, as coverage refuses it, instead of an IoU of 0 from false positives alone."""
+    pred, gt = pair
+    g = read_grid(gt)
+    for name, fill in (("zeros.npz", 0), ("free_unknown.npz", 255)):
+        lab = np.zeros_like(g.labels)
+        lab[0] = fill
+        write_grid(tmp_path / name, Grid(lab, g.origin, g.voxel_size, g.class_names))
+        code, out, err = run(capsys, "eval", pred, tmp_path / name)
+        assert code == 2 and name in err and "no occupied voxel" in err and len(err.strip().splitlines()) == 1, err
+        assert out == ""

@@ -171,3 +171,39 @@ def test_traj_perturb_jitter_command_line(tmp_path, capsys):
     assert np.allclose(DJ, expect, atol=1e-12)
     code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "bad.txt", "--jitter", "-1"])
     assert code == 2 and "--jitter" in err and not (tmp_path / "bad.txt").exists()
+
+
+@pytest.mark.parametrize("opt", ["--drift", "--drift-per-m", "--rot-drift-deg"])
+def test_traj_perturb_refuses_a_drift_that_overflows(tmp_path, capsys, opt):
+    """--drift 1e300 squared overflows (it was an OverflowError traceback): the drifts have a range."""
+    write_poses(tmp_path / "gt.txt", _helix(5))
+    code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "o.txt", opt, "1e300"])
+    assert code == 2 and opt in err and len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.txt"]
+
+
+def _tum_text(T, stamps) -> str:
+    from panovocc_cli.geometry.poses import rot_to_quat
+
+    return "".join(" ".join(repr(float(x)) for x in [t, *P[:3, 3], *rot_to_quat(P[:3, :3])]) + "\n"
+                   for t, P in zip(stamps, T))
+
+
+def test_duplicate_timestamps_and_huge_coordinates_are_refused(tmp_path, capsys):
+    """A TUM file with a timestamp twice (which pose is frame t?) and a coordinate of 1e308 m (squares overflow:
+    ATE inf) are refused by the one trajectory reader, so traj eval, map --poses and revise all refuse them."""
+    T = _helix(12)
+    write_tum(tmp_path / "gt.tum", T)
+    (tmp_path / "dup.tum").write_text(_tum_text(T, [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 10]))
+    with pytest.raises(PanovoccError, match="line 12: timestamp 10.0 repeats line 11"):
+        read_trajectory(tmp_path / "dup.tum")
+    far = T.copy()
+    far[5, 0, 3] = 1e308
+    (tmp_path / "far.tum").write_text(_tum_text(far, range(12)))
+    write_poses(tmp_path / "far.txt", far)
+    for name, line in (("far.tum", 6), ("far.txt", 6)):
+        with pytest.raises(PanovoccError, match=f"line {line}: camera position .* beyond"):
+            read_trajectory(tmp_path / name)
+    for est in ("dup.tum", "far.tum"):
+        code, out, err = run_cli(capsys, ["traj", "eval", tmp_path / est, tmp_path / "gt.tum"])
+        assert code == 2 and est in err and len(err.strip().splitlines()) == 1 and "ATE" not in out, err

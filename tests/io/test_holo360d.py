@@ -170,3 +170,25 @@ def test_bad_pose_file_and_layout(scene, tmp_path, capsys):
     assert rc == 2 and "rgb/" in err and not (tmp_path / "out").exists()
     rc, _, err = run(capsys, "convert", "holo360d", scene, tmp_path / "o2", "--pose-form", "xyz")
     assert rc == 2 and "--pose-form" in err
+
+
+def test_convert_refuses_a_non_rigid_pose_and_a_width_beyond_memory(scene, tmp_path, capsys):
+    """A pose line whose R is not a rotation (scaled by 2) is refused on one line naming the file, line and
+    frame (map would refuse the sequence later); --width 100000 is refused by its memory estimate before any
+    frame is converted (it was killed for memory, leaving its staging folder). Nothing is left behind."""
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(scene, bad)
+    p = bad / "poses" / "poses.txt"
+    lines = p.read_text().splitlines()
+    parts = lines[3].split()
+    lines[3] = " ".join(parts[:4] + [f"{2 * float(v):.12g}" for v in parts[4:]])
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(PanovoccError, match="line 4 .frame 11.: not rigid"):
+        read_holo_poses(bad / "poses")
+    rc, _, err = run(capsys, "convert", "holo360d", bad, tmp_path / "out", "--quiet")
+    assert rc == 2 and "poses.txt: line 4 (frame 11): not rigid" in err and len(err.strip().splitlines()) == 1, err
+    rc, _, err = run(capsys, "convert", "holo360d", scene, tmp_path / "out", "--width", "100000", "--quiet")
+    assert rc == 2 and "--width 100000" in err and "GiB of memory" in err and len(err.strip().splitlines()) == 1, err
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["bad"]

@@ -226,3 +226,37 @@ def test_delta_record_factored_channels_and_observation_round_trip():
     assert rec.observation is None
     for name in ch:
         np.testing.assert_array_equal(rec.parts[0][1][name], ch[name])
+
+
+def test_a_greyscale_image_where_colour_is_expected_is_refused(tmp_path, capsys):
+    """An RGB frame that is greyscale (8- or 16-bit grey PNG, one-component JPEG: e.g. a label or mask image
+    put in rgb/) is refused on one line naming it, before any work (the frame check) and when read; colour
+    images are read as before."""
+    import cv2
+
+    from cli_helpers import run_cli
+    from panovocc_cli.io.images import check_image_header, read_rgb
+    from room_sequence import write_room_sequence
+
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 255, (32, 64, 3), np.uint8)
+    grey = rgb[..., 0]
+    cv2.imwrite(str(tmp_path / "c.png"), rgb)
+    cv2.imwrite(str(tmp_path / "c.jpg"), rgb)
+    cv2.imwrite(str(tmp_path / "g.png"), grey)
+    cv2.imwrite(str(tmp_path / "g16.png"), grey.astype(np.uint16) * 257)
+    cv2.imwrite(str(tmp_path / "g.jpg"), grey)
+    assert np.array_equal(read_rgb(tmp_path / "c.png"), rgb[..., ::-1])
+    assert read_rgb(tmp_path / "c.jpg").shape == (32, 64, 3)
+    for name in ("g.png", "g16.png", "g.jpg"):
+        for call in (lambda p: read_rgb(p), lambda p: check_image_header(p, "rgb", (32, 64))):
+            with pytest.raises(PanovoccError, match="greyscale") as e:
+                call(tmp_path / name)
+            assert name in str(e.value) and "\n" not in str(e.value)
+    seq = tmp_path / "seq"
+    write_room_sequence(seq, 2, 64)
+    cv2.imwrite(str(seq / "rgb" / "000001.png"), cv2.cvtColor(cv2.imread(str(seq / "rgb" / "000001.png")),
+                                                              cv2.COLOR_BGR2GRAY))
+    code, _, err = run_cli(capsys, ["map", seq, tmp_path / "m", "--segmenter", "none", "--quiet"])
+    assert code == 2 and "000001.png" in err and "greyscale" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "m").exists()

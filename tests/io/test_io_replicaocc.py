@@ -181,3 +181,13 @@ def test_bad_files_one_clear_error(tmp_path):
     write_pickle(tmp_path / "evil.pkl", {"global_labels": Evil()})
     with pytest.raises(PanovoccError, match="refusing to load builtins.print"):
         read_replicaocc(tmp_path / "evil.pkl", None)
+
+
+def test_convert_refuses_an_empty_class_names_list(tmp_path, capsys):
+    """``--class-names ''`` is an empty list: refused in one line, not read as "use FreeOcc's list"."""
+    from cli_helpers import run_cli
+
+    p = write_pickle(tmp_path / "s.pkl", freeocc_scene())
+    code, _, err = run_cli(capsys, ["convert", "replicaocc", p, tmp_path / "g.npz", "--class-names", ""])
+    assert code == 2 and "no class names" in err and len(err.strip().splitlines()) == 1, err
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["s.pkl"]

@@ -417,3 +417,24 @@ def test_o_counts_every_frame_that_saw_surface_and_older_maps_keep_their_rule(ro
     assert m.config.geometry.observe_hits is False
     _, ch0 = m.memory.nonzero()
     assert (ch0["N"][:, 0] > ch0["O"][:, 0]).any()  # the old count: measurements without a valid comparison
+
+
+def test_revise_matches_tum_poses_by_timestamp_as_map_does(room_seq, tmp_path):
+    """revise reads a pose file as map --poses does (io/poses.py frame_poses): a TUM file's lines are matched
+    to frames by timestamp, so two swapped lines change nothing, and the same file maps and revises alike."""
+    from panovocc_cli.io.poses import write_tum
+
+    true = np.loadtxt(room_seq / "poses.txt").reshape(-1, 4, 4)
+    write_tum(tmp_path / "t.tum", true)
+    out = tmp_path / "m"
+    run_map(_cfg(room_seq, out, poses=str(tmp_path / "t.tum")), progress=False)
+    before = _bytes(out)
+    order = np.arange(len(true))
+    order[[1, 2]] = order[[2, 1]]
+    lines = (tmp_path / "t.tum").read_text().splitlines(keepends=True)
+    (tmp_path / "swapped.tum").write_text("".join(lines[i] for i in order))
+    assert run_revise(out, tmp_path / "swapped.tum", progress=False)["revised"] == 0
+    assert _bytes(out) == before
+    with pytest.raises(PanovoccError, match="1 of 5 frames \\(4\\)"):  # a TUM file missing a pose: the frame is named
+        write_tum(tmp_path / "few.tum", true[:-1])
+        run_revise(out, tmp_path / "few.tum", progress=False)

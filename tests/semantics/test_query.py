@@ -101,6 +101,34 @@ def test_relabel_matrix_merges_names_and_similar_words():
             parse_relabel_vocab(bad)
 
 
+NOT_UTF8 = b"caf\xe9".decode("utf-8", "surrogateescape")  # how Python hands over a non-UTF-8 argv word
+
+
+def test_text_that_is_not_utf8_is_refused_before_the_text_model():
+    """A query or vocabulary word that is not valid UTF-8 (a Latin-1 byte on the command line) is one line,
+    not a TypeError from the tokenizer: refused before anything is encoded."""
+    from panovocc_cli.classes import parse_vocab
+
+    def enc(texts):
+        raise AssertionError("the text model must not see it")
+
+    for call in (lambda: match_classes(f"a {NOT_UTF8}", ["bed"], enc),
+                 lambda: parse_relabel_vocab(f"bed,{NOT_UTF8}"), lambda: parse_relabel_vocab(f"x=bed+{NOT_UTF8}"),
+                 lambda: parse_vocab(f"eval8,{NOT_UTF8}")):
+        with pytest.raises(PanovoccError, match="not valid UTF-8") as e:
+            call()
+        assert "\n" not in str(e.value)
+
+
+def test_a_merge_naming_a_stored_class_twice_is_refused():
+    """``x=chair+chair`` names chair twice: refused like a word given twice (``bed,bed``). (A --vocab of map or
+    eval that repeats a class keeps it once: documented in docs/semantics.md and tested in
+    tests/semantics/test_semantics_segmenter.py.)"""
+    with pytest.raises(PanovoccError, match="'chair' twice"):
+        parse_relabel_vocab("bed,x=chair+chair")
+    assert parse_relabel_vocab("bed,x=chair+sofa") == [("bed", []), ("x", ["chair", "sofa"])]
+
+
 # --- end to end on a map --------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -178,7 +206,10 @@ def test_query_command_writes_ply_and_png_and_refuses_bad_input(room_map, minilm
     for argv, what in ((["query", tmp_path, "bed"], "config.json"),
                        (["query", room_map, "bed", "--out", tmp_path / "q.txt"], "--out must end in"),
                        (["query", room_map, "bed", "--out", tmp_path / "p.png"], "already exists"),
-                       (["query", room_map, "  "], "query is empty")):
+                       (["query", room_map, "  "], "query is empty"),
+                       (["query", room_map, NOT_UTF8], "not valid UTF-8"),
+                       (["relabel", room_map, tmp_path / "n.npz", "--vocab", f"bed,{NOT_UTF8}"], "not valid UTF-8"),
+                       (["relabel", room_map, tmp_path / "n.npz", "--vocab", "bed,x=chair+chair"], "twice")):
         code, out, err = run_cli(capsys, argv)
         assert code == 2 and what in err and len(err.strip().splitlines()) == 1, (argv, err)
 
@@ -205,3 +236,34 @@ def test_relabel_merges_classes_under_a_new_vocabulary(room_map, minilm, tmp_pat
     # a word the evidence cannot support is refused on one line, and nothing is written
     code, out, err = run_cli(capsys, ["relabel", room_map, tmp_path / "bad.npz", "--vocab", "bed,spaceship"])
     assert code == 2 and "does not support 'spaceship'" in err and not (tmp_path / "bad.npz").exists()
+
+
+def test_relabel_min_similarity_leaves_classes_no_word_takes_without_a_label(room_map, tmp_path):
+    """``--min-similarity``: a stored class whose most similar new word is below it goes to no word, and the
+    voxels its evidence wins get no class (254), not the nearest word's label (the option had no effect:
+    every occupied voxel came out tv). A tiny hand-made text model: seating is chair at cosine 0.8 and sofa
+    at 0.55; every other word is orthogonal to every other."""
+    from panovocc_cli.cli.query_cmds import RelabelConfig, run_relabel
+    from panovocc_cli.io.grid import read_grid
+
+    words = ["ceiling", "floor", "wall", "window", "chair", "bed", "sofa", "table", "curtain", "door", "tv",
+             "lighting"]
+    table = {w: np.eye(len(words) + 1)[k] for k, w in enumerate(words)}
+    table["seating"] = 0.8 * table["chair"] + 0.55 * table["sofa"] + np.sqrt(1 - 0.64 - 0.3025) * np.eye(13)[12]
+    enc = fake_encoder(table)
+    old = read_grid(room_map / "prediction.npz")
+    was = {n: old.labels == old.class_names.index(n) for n in ("wall", "floor", "tv", "chair", "sofa")}
+    for min_sim, sofa_to in ((0.5, "seating"), (0.6, None)):
+        out = tmp_path / f"n{min_sim}.npz"
+        res = run_relabel(RelabelConfig(room_map, out, vocab="tv,seating", min_similarity=min_sim), encode=enc)
+        new = read_grid(out)
+        assert list(new.class_names) == ["empty", "tv", "seating"]
+        occ = lambda g: (g.labels >= 1) & (g.labels != 255)  # noqa: E731
+        assert np.array_equal(occ(old), occ(new))  # the same geometry
+        share = lambda m, label: float((new.labels[m] == label).mean())  # noqa: E731
+        for n in ("wall", "floor"):
+            assert was[n].sum() > 50 and share(was[n], 254) > 0.95, (n, share(was[n], 254))
+        assert share(was["tv"], 1) > 0.9 and share(was["chair"], 2) > 0.9
+        assert share(was["sofa"], 2 if sofa_to else 254) > 0.9, (min_sim, share(was["sofa"], 2))
+        assert res["classed"]["tv"] + res["classed"]["seating"] == int(((new.labels == 1) | (new.labels == 2)).sum())
+        assert res["unclassed"] == int((new.labels == 254).sum()) > res["classed"]["tv"]
