@@ -84,14 +84,18 @@ def _flag(spec: _Spec) -> str:
     return option_name(spec.field, spec.opt)
 
 
+def _bound(v) -> str:
+    return str(v) if isinstance(v, int) else f"{v:g}"  # integers in full (a seed's 2^64 - 1, not 1.84467e+19)
+
+
 def _range_text(o: Opt) -> str:
     parts = []
     if o.min is not None and o.max is not None:
-        parts.append(f"{o.min:g} {'<' if o.min_open else '<='} x <= {o.max:g}")
+        parts.append(f"{_bound(o.min)} {'<' if o.min_open else '<='} x <= {_bound(o.max)}")
     elif o.min is not None:
-        parts.append(f"x {'>' if o.min_open else '>='} {o.min:g}")
+        parts.append(f"x {'>' if o.min_open else '>='} {_bound(o.min)}")
     elif o.max is not None:
-        parts.append(f"x <= {o.max:g}")
+        parts.append(f"x <= {_bound(o.max)}")
     if o.even:
         parts.append("even")
     return f" (range: {', '.join(parts)})" if parts else ""  # not [..]: rich would read it as markup
