@@ -28,7 +28,7 @@ from ..classes import class_color
 from ..errors import PanovoccError
 from ..geometry.lattice import index_to_center, unpack_keys
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
-from ..semantics.gsc import consolidate, unaries
+from ..semantics.gsc import UNARY_CHUNK, consolidate, unaries
 from .contributors import NORMAL_STEPS, S_SCALE
 from .memory import FIXED_SCALE
 from .params import RULES, OccupancyParams
@@ -189,10 +189,14 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     n = len(occupied_keys)
     if n == 0:
         return np.zeros(0, np.int64)
-    E = channels["E"] / S_SCALE
     S = channels["S"][:, 0] / S_SCALE
-    p, normals, colors = unaries(E, S, channels["normal_sum"] / NORMAL_STEPS, channels["rgb_sum"],
-                                 channels["count"][:, 0])
+    parts = []
+    for r in range(0, n, UNARY_CHUNK):  # row by row, so a block at a time gives the same values
+        b = slice(r, r + UNARY_CHUNK)
+        parts.append(unaries(channels["E"][b] / S_SCALE, S[b], channels["normal_sum"][b] / NORMAL_STEPS,
+                             channels["rgb_sum"][b], channels["count"][b, 0]))
+    p, normals, colors = (np.concatenate(x) for x in zip(*parts))
+    del parts
     return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
                        use_gsc=params.use_gsc, params=params.gsc)
 

@@ -37,6 +37,10 @@ from ..errors import PanovoccError
 from ..geometry.lattice import pack_keys
 
 UNKNOWN = -1
+EDGE_CHUNK = 1 << 20
+"""Edges whose affinities are computed at a time (bounds the temporaries of a large map's export)."""
+UNARY_CHUNK = 1 << 18
+"""Voxels whose unaries are computed at a time (:func:`unaries`)."""
 
 
 @dataclass(frozen=True)
@@ -121,6 +125,14 @@ def edge_affinity(i: np.ndarray, j: np.ndarray, axis: np.ndarray, g: np.ndarray,
     g = np.asarray(g, dtype=np.float32)
     nh = unit_rows(normals)
     col = np.asarray(colors, dtype=np.float32)
+    w = np.empty(np.size(i), np.float32)
+    for s in range(0, w.size, EDGE_CHUNK):  # per edge, so a chunk at a time gives the same values
+        e = slice(s, s + EDGE_CHUNK)
+        w[e] = _affinity(i[e], j[e], axis[e], g, nh, col, params)
+    return w
+
+
+def _affinity(i, j, axis, g, nh, col, params: GSCParams) -> np.ndarray:
     k_g = np.exp(-np.abs(g[i] - g[j]) / np.float32(params.s_g))
     ni, nj = nh[i], nh[j]
     dot = np.einsum("mk,mk->m", ni, nj)
@@ -142,7 +154,8 @@ def transition_matrix(n: int, i: np.ndarray, j: np.ndarray, w: np.ndarray):
     import scipy.sparse as sp
 
     keep = w > 0
-    i, j, w = i[keep], j[keep], w[keep].astype(np.float32)
+    it = np.int32 if n < 2 ** 31 else np.int64  # the same matrix; half the index bytes while it is built
+    i, j, w = i[keep].astype(it), j[keep].astype(it), w[keep].astype(np.float32)
     rows = np.concatenate([i, j])
     cols = np.concatenate([j, i])
     vals = np.concatenate([w, w])
@@ -220,7 +233,7 @@ def gsc_diffuse(occupied_idx: np.ndarray, p: np.ndarray, S: np.ndarray, g: np.nd
         raise PanovoccError(f"GSC inputs disagree with {n} voxels: p {p.shape}, S {S.shape}, g {np.shape(g)}, "
                             f"normals {np.shape(normals)}, colors {np.shape(colors)}")
     has = S > 0
-    p = np.where(has[:, None], p, 0.0).astype(np.float32)
+    p = np.where(has[:, None], p, np.float32(0.0)).astype(np.float32, copy=False)
     if n == 0 or params.iterations <= 0:
         return p
     # Work in lattice-key order: neighbours then sit close in memory (fast sparse products).
@@ -237,6 +250,7 @@ def _diffuse_sorted(idx, p, S, g, normals, colors, params: GSCParams) -> np.ndar
     i, j, a = neighbour_edges(idx)
     w = edge_affinity(i, j, a, g, normals, colors, params)
     Wb = transition_matrix(n, i, j, w)
+    del i, j, a, w  # the matrix holds what the iterations need
     rowsum = np.asarray(Wb.sum(axis=1)).ravel().astype(np.float32)
     rho = anchor_strength(p, S, params.S0)
     lam = np.float32(params.lambda_s)
@@ -245,9 +259,15 @@ def _diffuse_sorted(idx, p, S, g, normals, colors, params: GSCParams) -> np.ndar
     inv = np.where(live, 1.0 / np.where(live, denom, 1.0), 0.0).astype(np.float32)[:, None]
     anchor = rho[:, None] * p
     q = p.copy()
+    live = np.broadcast_to(live[:, None], q.shape)
     for _ in range(int(params.iterations)):
-        nxt = (anchor + lam * (Wb @ q)) * inv
-        q = np.where(live[:, None], nxt, q).astype(np.float32, copy=False)
+        # (anchor + lam * (W_bar q)) * inv, in place: the same float32 operations in the same order
+        nxt = Wb @ q
+        nxt *= lam
+        nxt += anchor
+        nxt *= inv
+        np.copyto(q, nxt, where=live)
+        del nxt
     return q
 
 
