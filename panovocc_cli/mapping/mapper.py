@@ -105,6 +105,13 @@ def _check_pose(T, what: str) -> np.ndarray:
     return T
 
 
+def _legacy_origin(config: MapperConfig, n_frames: int) -> MapperConfig:
+    """A map made before local origins (``origin`` None, frames kept) has the world's: set it to zeros."""
+    if config.origin is None and n_frames:
+        config.origin = [0.0, 0.0, 0.0]
+    return config
+
+
 class Mapper:
     """One map: integrate frames, revise or remove them, read the grid, save and reload.
 
@@ -128,8 +135,7 @@ class Mapper:
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
             _rpu = ReversibleMemory(VoxelMemory(config.geometry.voxel_size, memory_channels(config)), DeltaStore(folder))
         self._rpu = _rpu
-        if self.config.origin is None and len(_rpu.store):  # a map made before local origins: the world's
-            self.config.origin = [0.0, 0.0, 0.0]
+        _legacy_origin(self.config, len(_rpu.store))
         self.frame_source = frame_source
         self._frames: dict[int, Frame] = {}
         self._rays: dict = {}
@@ -280,7 +286,8 @@ class Mapper:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 
         Writes the deltas not yet there, then ``memory.npz`` (the commit point), then ``config.json``
-        (unless the folder's config already holds this mapper's parameters, e.g. a map run's) and
+        (unless the folder's config already holds this mapper's parameters, e.g. a map run's; a config.json
+        that cannot be read or holds other parameters is refused before anything is written) and
         ``poses.txt`` (the kept frames' poses in id order). Deltas kept in RAM move to ``folder``.
         ``background=True``: ``memory.npz`` (of the memory as it is at the call) is written on the delta
         writer thread while the caller goes on (the map command's checkpoints); it is on disk once
@@ -289,16 +296,29 @@ class Mapper:
         folder = Path(folder) if folder is not None else self.folder
         if folder is None:
             raise PanovoccError("Mapper.save needs a folder (this mapper keeps its deltas in RAM)")
+        write_config = not self._holds_my_config(folder)  # refuses before anything is written
         self._rpu.save(folder, background)
-        cfg_path = folder / mapstore.CONFIG_NAME
-        try:
-            same = cfg_path.is_file() and MapperConfig.from_json(mapstore.read_map_config(folder)) == self.config
-        except PanovoccError:
-            same = False
-        if not same:
+        if write_config:
             mapstore.write_map_config(folder, self.config.to_json())
         write_poses(folder / "poses.txt", self._rpu.poses()[1])
         return folder
+
+    def _holds_my_config(self, folder: Path) -> bool:
+        """Whether ``folder/config.json`` holds this mapper's parameters (a map run's, or an earlier save's):
+        True; no config.json: False. One that cannot be read, or holds other parameters, is never overwritten:
+        :class:`PanovoccError`."""
+        path = folder / mapstore.CONFIG_NAME
+        if not (path.exists() or path.is_symlink()):
+            return False
+        try:
+            theirs = MapperConfig.from_json(mapstore.read_map_config(folder), path)
+        except PanovoccError as e:
+            raise PanovoccError(f"{e} -- Mapper.save does not overwrite a config.json it cannot read; save to "
+                                "another folder") from None
+        if _legacy_origin(theirs, len(self)) != self.config:
+            raise PanovoccError("holds another map's parameters; Mapper.save does not overwrite it (save to "
+                                "another folder)", path)
+        return True
 
     @classmethod
     def load(cls, folder: str | Path, frame_source: Callable[[int], Frame] | None = None) -> "Mapper":

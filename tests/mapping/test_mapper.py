@@ -424,3 +424,39 @@ def test_a_semantic_map_of_an_older_format_is_refused_in_one_line(mapped, tmp_pa
     (old / "config.json").write_text(json.dumps(d))
     with pytest.raises(PanovoccError, match="format 3.*map the sequence again"):
         Mapper.load(old)
+
+
+def test_save_never_overwrites_a_config_it_cannot_prove_equal(mapped, tmp_path):
+    """Mapper.save over a folder whose config.json is another map's, or unreadable, refuses in one line and
+    writes nothing; a map made before local origins (no origin in config.json) saves over itself keeping its
+    config.json, so map --resume and revise can still read it."""
+    import json
+    import shutil
+
+    from cli_helpers import snapshot
+
+    out, cfg, frames = mapped
+    other = dataclasses.replace(cfg.mapper_config(), vocab=[])  # a geometry-only mapper
+    m = Mapper(other)
+    m.integrate(dataclasses.replace(frames(0), logits=None))
+    for name, text in (("theirs", (out / "config.json").read_text()), ("broken", "{not json")):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "config.json").write_text(text)
+        before = snapshot(d)
+        with pytest.raises(PanovoccError, match="config.json") as e:
+            m.save(d)
+        assert "\n" not in str(e.value)
+        assert snapshot(d) == before
+    legacy = tmp_path / "legacy"
+    shutil.copytree(out, legacy)
+    d = json.loads((legacy / "config.json").read_text())
+    d.pop("origin")
+    (legacy / "config.json").write_text(json.dumps(d, indent=2) + "\n")
+    text = (legacy / "config.json").read_text()
+    back = Mapper.load(legacy)
+    assert back.config.origin == [0.0, 0.0, 0.0]
+    back.save(legacy)
+    back.close()
+    assert (legacy / "config.json").read_text() == text
+    assert load_config(legacy).seq == cfg.seq
