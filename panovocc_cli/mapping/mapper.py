@@ -38,6 +38,8 @@ docs/mapping.md, "Delta store size").
 from __future__ import annotations
 
 import dataclasses
+import functools
+import threading
 from pathlib import Path
 from typing import Callable
 
@@ -105,6 +107,15 @@ def _check_pose(T, what: str) -> np.ndarray:
     return T
 
 
+def _locked(method):
+    """Run ``method`` holding the mapper's lock (one call that changes or reads the map at a time)."""
+    @functools.wraps(method)
+    def run(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    return run
+
+
 def _legacy_origin(config: MapperConfig, n_frames: int) -> MapperConfig:
     """A map made before local origins (``origin`` None, frames kept) has the world's: set it to zeros."""
     if config.origin is None and n_frames:
@@ -125,11 +136,18 @@ class Mapper:
     frame_source : callable ``frame_id -> Frame`` or None
         Where :meth:`revise` gets a frame's data again; None keeps each integrated Frame (module docstring).
         A public attribute: it may be set after :meth:`load`.
+
+    Thread safety: one lock (a ``threading.RLock``) is held by every call that changes or reads the map
+    (integrate, revise, remove, pose, frame_ids, export, prediction, checkpoint, save, close), so a SLAM
+    thread may revise frames while another thread integrates: the calls run one at a time, whole, and the
+    memory is the same as if they had been made in that order from one thread. :attr:`memory` is the live
+    object: read it only from the thread that changes the map.
     """
 
     def __init__(self, config: MapperConfig, *, folder: str | Path | None = None,
                  frame_source: Callable[[int], Frame] | None = None, _rpu: ReversibleMemory | None = None):
         self.config = config.check()
+        self._lock = threading.RLock()
         if _rpu is None:
             if folder is not None and has_store(folder):
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
@@ -152,13 +170,15 @@ class Mapper:
     @property
     def frame_ids(self) -> list[int]:
         """Ids of the frames the map holds, ascending."""
-        return self._rpu.store.ids()
+        with self._lock:
+            return self._rpu.store.ids()
 
     @property
     def folder(self) -> Path | None:
         """The folder the deltas live in (None: in RAM)."""
         return self._rpu.store.folder
 
+    @_locked
     def pose(self, frame_id: int) -> np.ndarray:
         """(4, 4) float64 T_world_cam the frame's kept delta was computed under."""
         if frame_id not in self._rpu.store:
@@ -166,7 +186,8 @@ class Mapper:
         return self._rpu.store.poses[int(frame_id)].copy()
 
     def __len__(self) -> int:
-        return len(self._rpu.store)
+        with self._lock:
+            return len(self._rpu.store)
 
     # -- frames ----------------------------------------------------------------------------------
     def _local(self, frame: Frame) -> Frame:
@@ -208,6 +229,7 @@ class Mapper:
                 rays = self._rays[frame.camera] = frame.camera.rays()
         return frame_delta(frame, self.config, rays, observation)
 
+    @_locked
     def integrate(self, frame: Frame) -> int:
         """Add a frame; returns its id (``frame.index`` when set, else the next unused id).
 
@@ -229,6 +251,7 @@ class Mapper:
         self._next_id = max(self._next_id, fid + 1)
         return fid
 
+    @_locked
     def revise(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None = None) -> bool:
         """Move frame ``frame_id`` to pose ``T_world_cam`` (4, 4): its delta is recomputed and swapped in.
 
@@ -256,6 +279,7 @@ class Mapper:
             self._frames[fid] = frame
         return True
 
+    @_locked
     def remove(self, frame_id: int) -> None:
         """Take frame ``frame_id`` out: the memory equals that of a map that never had it."""
         self._rpu.remove(int(frame_id))
@@ -264,6 +288,7 @@ class Mapper:
             self.empty_frames.remove(int(frame_id))
 
     # -- outputs ---------------------------------------------------------------------------------
+    @_locked
     def export(self) -> MapExport:
         """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory."""
         keys, ch = self.memory.nonzero()
@@ -276,12 +301,14 @@ class Mapper:
         return self.export().grid
 
     # -- persistence -----------------------------------------------------------------------------
+    @_locked
     def checkpoint(self, *, background: bool = False) -> None:
         """Commit the folder's delta log: what a reopened map holds from now on. Writes one small record
         (no memory file, no pose file), so its cost does not grow with the map; ``background``: on the
         delta writer thread (:meth:`close` waits for it and re-raises its error)."""
         self._rpu.checkpoint(background)
 
+    @_locked
     def save(self, folder: str | Path | None = None, *, background: bool = False) -> Path:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 
@@ -334,6 +361,7 @@ class Mapper:
                                 "match config.json", folder / mapstore.MEMORY_NAME)
         return cls(config, frame_source=frame_source, _rpu=rpu)
 
+    @_locked
     def close(self) -> None:
         """Finish pending delta writes and stop the writer thread (the mapper stays usable)."""
         self._rpu.close()

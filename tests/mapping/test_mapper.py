@@ -460,3 +460,56 @@ def test_save_never_overwrites_a_config_it_cannot_prove_equal(mapped, tmp_path):
     back.close()
     assert (legacy / "config.json").read_text() == text
     assert load_config(legacy).seq == cfg.seq
+
+
+def test_revise_from_a_second_thread_while_integrate_runs_is_serialised_and_exact(mapped):
+    """A SLAM thread revises frames while the main thread integrates: the mapper's lock lets one mutation
+    run at a time (never interleaved), and the memory equals the sequential computation bit for bit."""
+    import threading
+    import time
+
+    _, cfg, frames = mapped
+    moved = {0: _moved(frames(0).T_world_cam, 5), 1: _moved(frames(1).T_world_cam, 6)}
+    m = Mapper(cfg.mapper_config())
+    m.integrate(frames(0))
+    m.integrate(frames(1))
+    events, errors, inside = [], [], threading.Event()
+    real_keep, real_revise = m._rpu.keep, m._rpu.revise
+
+    def keep(*a, **k):
+        events.append("keep+")
+        inside.set()
+        time.sleep(0.05)  # a long update: the other thread has every chance to run meanwhile
+        real_keep(*a, **k)
+        events.append("keep-")
+
+    def revise(*a, **k):
+        events.append("revise+")
+        real_revise(*a, **k)
+        events.append("revise-")
+
+    m._rpu.keep, m._rpu.revise = keep, revise
+
+    def slam():
+        try:
+            inside.wait(10)
+            for j, T in moved.items():
+                m.revise(j, T)
+        except BaseException as e:  # noqa: BLE001 - reported by the assertion below
+            errors.append(e)
+
+    t = threading.Thread(target=slam)
+    t.start()
+    for i in range(2, N):
+        m.integrate(frames(i))
+    t.join(30)
+    assert not t.is_alive() and errors == []
+    pairs = [events[k:k + 2] for k in range(0, len(events), 2)]
+    assert all(a[:-1] == b[:-1] and a[-1] == "+" and b[-1] == "-" for a, b in pairs), events
+    assert sorted(events) == sorted(["keep+", "keep-"] * (N - 2) + ["revise+", "revise-"] * 2)
+    seq = Mapper(cfg.mapper_config())
+    for i in range(N):
+        f = frames(i)
+        seq.integrate(dataclasses.replace(f, T_world_cam=moved.get(i, f.T_world_cam)))
+    _assert_same_memory(m, seq)
+    np.testing.assert_array_equal(m.prediction().labels, seq.prediction().labels)
