@@ -47,6 +47,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from ..frame import Frame
+from ..geometry.poses import check_rigid
 from ..grid import Grid
 from ..io import mapstore
 from ..io.poses import write_poses
@@ -98,13 +99,6 @@ def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = No
         parts.append(semantic_delta(frame.depth, frame.rgb, observation, frame.T_world_cam, g.voxel_size,
                                     config.weights, g.min_range, g.max_range, rays))
     return FrameDelta(tuple(parts), observation)
-
-
-def _check_pose(T, what: str) -> np.ndarray:
-    T = np.asarray(T, np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise PanovoccError(f"{what}: T_world_cam must be a finite (4, 4) matrix, got shape {T.shape}")
-    return T
 
 
 def _locked(method):
@@ -263,7 +257,7 @@ class Mapper:
         ahead: ``panovocc revise``); its pose and logits are ignored.
         """
         fid = int(frame_id)
-        T = _check_pose(T_world_cam, f"frame {fid}")
+        T = check_rigid(T_world_cam, f"frame {fid}: T_world_cam")
         if np.array_equal(T, self.pose(fid)):
             return False
         if frame is None:

@@ -513,3 +513,26 @@ def test_revise_from_a_second_thread_while_integrate_runs_is_serialised_and_exac
         seq.integrate(dataclasses.replace(f, T_world_cam=moved.get(i, f.T_world_cam)))
     _assert_same_memory(m, seq)
     np.testing.assert_array_equal(m.prediction().labels, seq.prediction().labels)
+
+
+def test_poses_that_are_not_rigid_are_refused_naming_the_frame(mapped):
+    """A scaled pose, a reflection or a matrix whose last row is not [0 0 0 1] (e.g. a transposed one) is
+    refused by integrate and revise in one line naming the frame; the map is unchanged."""
+    _, cfg, frames = mapped
+    m = Mapper(cfg.mapper_config())
+    m.integrate(frames(0))
+    before = _arrays(m)
+    f = frames(1)
+    scaled, flipped, transposed = f.T_world_cam.copy(), f.T_world_cam.copy(), f.T_world_cam.T.copy()
+    scaled[:3, :3] *= 1.01
+    flipped[:, 0] *= -1
+    for T in (scaled, flipped, transposed):
+        with pytest.raises(PanovoccError, match=r"^frame 1: T_world_cam: (not rigid|last row)") as e:
+            m.integrate(dataclasses.replace(f, T_world_cam=T))
+        assert "\n" not in str(e.value)
+        with pytest.raises(PanovoccError, match=r"^frame 0: T_world_cam: (not rigid|last row)"):
+            m.revise(0, T)
+    assert m.frame_ids == [0]
+    after = _arrays(m)
+    assert all(np.array_equal(before[k], after[k]) for k in before)
+    assert m.integrate(dataclasses.replace(f, T_world_cam=f.T_world_cam + 1e-9)) == 1  # within the tolerance
