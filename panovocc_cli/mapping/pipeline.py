@@ -488,8 +488,11 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if times is not None:
                 times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
                               resident_mb()))
-    except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
+    except (PanovoccError, OSError) as e:  # found mid-run: say what is on disk and what can be done with it
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
+        if cfg.poses == POSES_SLAM:  # --resume refuses these (the tracker's state is not saved)
+            raise PanovoccError(f"{what} -- the --poses slam run in {out} stopped and cannot be resumed: fix the "
+                                f"input and start over with --overwrite") from None
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
                             f"panovocc map --resume {out} (or start over with --overwrite)") from None
     finally:

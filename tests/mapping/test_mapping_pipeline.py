@@ -417,3 +417,23 @@ def test_o_counts_every_frame_that_saw_surface_and_older_maps_keep_their_rule(ro
     assert m.config.geometry.observe_hits is False
     _, ch0 = m.memory.nonzero()
     assert (ch0["N"][:, 0] > ch0["O"][:, 0]).any()  # the old count: measurements without a valid comparison
+
+
+def test_a_slam_run_failing_mid_run_does_not_call_itself_resumable(room_seq, tmp_path):
+    """--poses slam runs refuse --resume: a failure found mid-run says to start over, never 'resumable'."""
+    from panovocc_cli.mapping.config import POSES_SLAM
+
+    def pose_source(seq):
+        def source(i, frame):
+            if i == 2:
+                raise PanovoccError("frame 2: the tracker's input is broken")
+            return seq.poses[i], []
+        return source
+
+    out = tmp_path / "m"
+    with pytest.raises(PanovoccError, match="frame 2: the tracker's input is broken") as e:
+        run_map(_cfg(room_seq, out, poses=POSES_SLAM), progress=False, pose_source=pose_source)
+    msg = str(e.value)
+    assert "\n" not in msg and "resum" not in msg.replace("cannot be resumed", "") and "--overwrite" in msg
+    with pytest.raises(PanovoccError, match="cannot be resumed"):
+        run_map(resume_out=out, progress=False)
