@@ -423,6 +423,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         check_output(out, "map", overwrite, inputs=(cfg.seq, None if cfg.poses == POSES_SLAM else cfg.poses,
                                                     cfg.poses_reference))
         _check_inputs(cfg, seq)  # every frame present with the right size and type, before the first write
+        if frames.segmenter is not None:
+            frames.segmenter.prepare()  # a network's weights and device: a failure here leaves nothing
         if not (out.exists() or out.is_symlink()):  # a run that fails before config.json leaves nothing behind
             held.callback(_remove_unless_started, out)
         out.mkdir(parents=True, exist_ok=True)

@@ -547,6 +547,9 @@ CASES = [
       lambda b, t: ["map", b / "seq", t / "out", "--segmenter", f"clip:ViT-B-16@{t / 'no.bin'}", *Q], "not found"),
     C("vocab", "clip-folder-without-config",
       lambda b, t: ["map", b / "seq", t / "out", "--segmenter", f"clip:{nonempty(t, 'w')}", *Q], "open_clip_config"),
+    C("vocab", "clip-weights-junk",
+      lambda b, t: ["map", b / "seq", t / "out", "--segmenter",
+                    f"clip:ViT-B-16@{write(t / 'junk.bin', bytes(range(256)) * 20)}", *Q], "cannot load CLIP weights"),
     C("vocab", "clip-bad-option",
       lambda b, t: ["map", b / "seq", t / "out", "--segmenter", "clip,rig=sphere", *Q], "rig"),
     C("query", "query-not-a-map", lambda b, t: ["query", b / "seq", "a place to sleep"], "not a panovocc map"),
@@ -669,6 +672,19 @@ def check_case(capsys, base: Path, t: Path, case: Case) -> None:
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_bad_input(capsys, base, base_pkl, case_dir, case):
     check_case(capsys, base, case_dir, case)
+
+
+def test_clip_on_cuda_without_a_gpu_is_refused_before_any_write(capsys, base, case_dir):
+    """``clip:FOLDER,device=cuda`` on a machine without CUDA: refused before the first write (the network
+    is loaded before the map folder is made), one line, nothing left."""
+    torch = pytest.importorskip("torch")
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device")
+    from clip_helpers import write_tiny_clip
+
+    w = write_tiny_clip(case_dir / "w")
+    check_case(capsys, base, case_dir, C("vocab", "clip-cuda-without-gpu", lambda b, t: [
+        "map", b / "seq", t / "out", "--segmenter", f"clip:{w},device=cuda", *Q], "device=cuda"))
 
 
 def test_case_count_is_stated():
