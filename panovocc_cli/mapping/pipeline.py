@@ -336,6 +336,14 @@ def _writer_lock(out: Path):
         yield
 
 
+def _require_deltas(out: Path) -> None:
+    """revise and ``map --resume`` re-read the frames' deltas: a map folder without ``deltas/`` (a benchmark
+    cache's map keeps only its outputs) is refused before anything is written."""
+    if not (out / mapstore.DELTAS_DIR).is_dir():
+        raise PanovoccError(f"{mapstore.DELTAS_DIR}/ not found: this map's delta store was removed (only its outputs "
+                            "are left), so it cannot be revised or resumed; map the sequence again", out)
+
+
 def load_config(out: str | Path) -> MapConfig:
     """The resolved :class:`MapConfig` of a map run's output folder."""
     return MapConfig.from_json(mapstore.read_map_config(out), Path(out) / CONFIG_NAME)
@@ -390,6 +398,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if has_store(out):
+            _require_deltas(out)
             mapper = Mapper.load(out, frame_source=frames.read)
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
@@ -562,6 +571,7 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     cfg = load_config(out)
     new_poses = read_poses(poses_path)
     n_seq = read_meta(cfg.seq).frames
+    _require_deltas(out)
     mapper = Mapper.load(out)
     try:
         k = len(mapper)

@@ -588,6 +588,14 @@ CASES = [
           map_copy(b, t)), *Q], "delta log ends before"),
     C("mapdir", "resume-format-version-99",
       lambda b, t: ["map", "--resume", map_with_config(b, t, format_version=99), *Q], "format_version"),
+    C("mapdir", "revise-without-deltas",
+      lambda b, t: ["revise", (lambda m: shutil.rmtree(m / "deltas") or m)(map_copy(b, t)), map_poses(b), *Q],
+      "deltas"),
+    C("mapdir", "revise-without-deltas-or-memory",
+      lambda b, t: ["revise", (lambda m: shutil.rmtree(m / "deltas") or (m / "memory.npz").unlink() or m)(
+          map_copy(b, t)), map_poses(b), *Q], "deltas"),
+    C("mapdir", "resume-without-deltas",
+      lambda b, t: ["map", "--resume", (lambda m: shutil.rmtree(m / "deltas") or m)(map_copy(b, t)), *Q], "deltas"),
     C("mapdir", "resume-not-a-map", lambda b, t: ["map", "--resume", nonempty(t), *Q], "config.json"),
     # --- baselines (issue 12)
     C("baselines", "run-seq-missing", lambda b, t: ["baselines", "run", "persp-tsdf", t / "nosuch", t / "o", *Q],
