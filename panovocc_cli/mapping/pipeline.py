@@ -41,7 +41,7 @@ from ..io.poses import frame_poses, read_poses, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
 from .config import (PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig, MapperConfig, ReviseConfig,
-                     SemanticParams)
+                     SemanticParams, check_key_reach)
 from .export import point_colors
 from .mapper import Mapper
 from .rpu import has_store
@@ -278,6 +278,7 @@ def resolve_origin(cfg: MapConfig, poses: np.ndarray) -> MapConfig:
     outside it (``poses`` (n, 4, 4) float64, world)."""
     from ..geometry.lattice import key_reach, local_origin
 
+    check_key_reach(cfg.geometry)
     h = cfg.geometry.voxel_size
     if cfg.origin is not None:  # the lattice point nearest the given origin
         o = local_origin(np.asarray(cfg.origin, np.float64) + 0.5 * h, h)

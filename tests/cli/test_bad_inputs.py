@@ -511,6 +511,8 @@ CASES = [
     C("option", "map-kappa-negative", lambda b, t: ["map", b / "seq", t / "out", "--kappa", "-1", *Q], "kappa"),
     C("option", "map-stride-huge", lambda b, t: ["map", b / "seq", t / "out", "--stride", "100000", *Q], "stride"),
     C("option", "map-voxel-size-0", lambda b, t: ["map", b / "seq", t / "out", "--voxel-size", "0", *Q], "voxel"),
+    C("option", "map-voxel-size-tiny", lambda b, t: ["map", b / "seq", t / "out", "--voxel-size", "1e-9", *Q],
+      "--voxel-size 1e-09 m is too small"),
     C("option", "map-max-range-0", lambda b, t: ["map", b / "seq", t / "out", "--max-range", "0", *Q], "max-range"),
     C("option", "map-kernel", lambda b, t: ["map", b / "seq", t / "out", "--kernel", "blob", *Q], "kernel"),
     C("option", "map-rule", lambda b, t: ["map", b / "seq", t / "out", "--rule", "vote", *Q], "rule"),
