@@ -342,12 +342,15 @@ class Mapper:
         return True
 
     @classmethod
-    def load(cls, folder: str | Path, frame_source: Callable[[int], Frame] | None = None) -> "Mapper":
+    def load(cls, folder: str | Path, frame_source: Callable[[int], Frame] | None = None, *,
+             roll_back: bool = False) -> "Mapper":
         """Reopen a saved map (a :meth:`save` folder or a ``panovocc map`` output). Its deltas stay in
-        ``folder``; revising a frame needs ``frame_source``."""
+        ``folder``; revising a frame needs ``frame_source``. ``roll_back``: a delta log truncated below a
+        commit is rolled back to the last commit it reaches (``map --resume``: the map then holds fewer
+        frames, mapped again by the caller); else refused."""
         folder = Path(folder)
         config = MapperConfig.from_json(mapstore.read_map_config(folder), folder / mapstore.CONFIG_NAME)
-        rpu = ReversibleMemory.load(folder, memory_channels(config), config.geometry.voxel_size)
+        rpu = ReversibleMemory.load(folder, memory_channels(config), config.geometry.voxel_size, roll_back)
         specs = tuple(rpu.memory.specs)
         if specs != memory_channels(config) or rpu.memory.voxel_size != config.geometry.voxel_size:
             rpu.close()

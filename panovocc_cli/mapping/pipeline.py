@@ -400,7 +400,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         frames = sequence_frames(cfg, seq)
         if has_store(out):
             _require_deltas(out)
-            mapper = Mapper.load(out, frame_source=frames.read)
+            mapper = Mapper.load(out, frame_source=frames.read, roll_back=True)  # a truncated log: as if killed
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))

@@ -585,9 +585,6 @@ CASES = [
     C("mapdir", "revise-delta-log-truncated",
       lambda b, t: ["revise", (lambda m: _truncate_half(m / "deltas" / "shard-000000.pvd") or m)(map_copy(b, t)),
                     poses_file(t, ident_lines(4)), *Q], "delta log ends before"),
-    C("mapdir", "resume-delta-log-truncated",
-      lambda b, t: ["map", "--resume", (lambda m: _truncate_half(m / "deltas" / "shard-000000.pvd") or m)(
-          map_copy(b, t)), *Q], "delta log ends before"),
     C("mapdir", "resume-format-version-99",
       lambda b, t: ["map", "--resume", map_with_config(b, t, format_version=99), *Q], "format_version"),
     C("mapdir", "revise-without-deltas",
