@@ -632,6 +632,10 @@ CASES = [
     C("traj", "map-poses-tum-unmatched",
       lambda b, t: ["map", b / "seq", t / "out", "--poses",
                     write(t / "p.tum", "".join(f"{i + 0.5} 0 0 0 0 0 0 1\n" for i in range(3))), *Q], "no pose within"),
+    C("traj", "map-poses-tum-clock-stamps",
+      lambda b, t: ["map", b / "seq", t / "out", "--poses",
+                    write(t / "p.tum", "".join(f"{1305031102.0 + 0.033 * i} 0 0 1.5 0 0 0 1\n" for i in range(4))),
+                    *Q], "match none of the frame indices"),
     C("traj", "perturb-onto-input", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", b / "seq" / "poses.txt"],
       "input"),
 ]
