@@ -162,6 +162,19 @@ def topological(tasks) -> list[Task]:
     return list(seen.values())
 
 
+def check_cache(cache: str | Path) -> None:
+    """Refuse a ``--cache`` folder that holds anything but a task cache's entries (``KIND/`` folders and
+    ``_events/``): a sweep never writes its tasks into a folder of other files."""
+    cache = Path(cache)
+    if not cache.is_dir():
+        return
+    top = EVENTS.split("/")[0]
+    others = sorted(p.name for p in cache.iterdir() if not (p.is_dir() and p.name in (*KINDS, top)))
+    if others:
+        raise PanovoccError(f"is not a panovocc task cache (it holds {others[0]!r}); choose another --cache (an "
+                            "empty or new folder)", cache)
+
+
 def clean_stale(cache: str | Path) -> int:
     """Remove temporary task folders a killed sweep left (``KIND/.KEY16.tmp.*``); returns how many.
 
