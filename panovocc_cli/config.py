@@ -12,6 +12,7 @@ Command-line options are declared here too, on the config dataclasses' fields: :
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import MISSING, dataclass
 from typing import Any, Callable, Sequence
 
@@ -149,7 +150,8 @@ def check_option(name: str, o: Opt, value: Any) -> Any:
     Raises
     ------
     PanovoccError
-        One line naming the option: not one of the choices, not a number, NaN, outside the range, odd.
+        One line naming the option: not one of the choices, not a number, NaN or infinite (for every
+        numeric option, declared range or not), outside the range, odd.
     """
     from .errors import PanovoccError
 
@@ -160,12 +162,13 @@ def check_option(name: str, o: Opt, value: Any) -> Any:
         if v not in o.choices:
             raise PanovoccError(f"{name}: {value!r} is not one of {', '.join(o.choices)}")
         return v
+    if isinstance(value, float) or (hasattr(value, "dtype") and value.dtype.kind == "f"):
+        if not math.isfinite(value):  # NaN or an infinity: no option means anything by them
+            raise PanovoccError(f"{name} must be a finite number, got {value}")
     if o.min is None and o.max is None and not o.even:
         return value
     if not isinstance(value, (int, float)) and not (hasattr(value, "dtype") and value.dtype.kind in "iuf"):
         raise PanovoccError(f"{name} must be a number, got {value!r}")
-    if value != value:  # NaN
-        raise PanovoccError(f"{name} must be a number, got {value}")
     lo_bad = o.min is not None and (value <= o.min if o.min_open else value < o.min)
     if lo_bad or (o.max is not None and value > o.max):
         shown = value if isinstance(value, int) else f"{float(value):g}"

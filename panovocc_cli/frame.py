@@ -14,6 +14,7 @@ import numpy as np
 
 from .errors import PanovoccError
 from .geometry.cameras import ErpCamera
+from .geometry.poses import check_rigid
 
 
 @dataclass
@@ -44,7 +45,8 @@ class Frame:
         self.T_world_cam = np.asarray(self.T_world_cam, np.float64)
 
     def check(self) -> "Frame":
-        """Validate shapes, dtypes and the pose; raise :class:`PanovoccError` naming what is wrong."""
+        """Validate shapes, dtypes and the pose (a rigid transform within ``config.RIGID_TOL``:
+        :func:`~panovocc_cli.geometry.poses.check_rigid`); raise :class:`PanovoccError` naming what is wrong."""
         what = f"frame {self.index}" if self.index is not None else "frame"
         if not isinstance(self.camera, ErpCamera):
             raise PanovoccError(f"{what}: camera {self.camera!r} is not supported (ERP only)")
@@ -55,9 +57,7 @@ class Frame:
         c = np.asarray(self.rgb)
         if c.shape != hw + (3,) or c.dtype != np.uint8:
             raise PanovoccError(f"{what}: rgb is {c.dtype} {c.shape}, expected uint8 {hw + (3,)}")
-        T = self.T_world_cam
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise PanovoccError(f"{what}: T_world_cam must be a finite (4, 4) matrix, got shape {T.shape}")
+        check_rigid(self.T_world_cam, f"{what}: T_world_cam")  # finite, orthonormal, last row [0 0 0 1]
         if self.logits is not None:
             lg = np.asarray(self.logits)
             if lg.ndim != 3 or not logits_stride(hw, lg.shape[:2]):

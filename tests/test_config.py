@@ -53,8 +53,24 @@ def test_nested_range_names_the_option():
         validate_config(MapConfig(seq="s", out="o", occupancy=OccupancyParams(nu=1.5)))
     with pytest.raises(PanovoccError, match=r"^--stride must be >= 0 and <= 64, got 65$"):
         validate_config(MapConfig(seq="s", out="o", stride=65))
-    with pytest.raises(PanovoccError, match="--voxel-size must be a number"):
+    with pytest.raises(PanovoccError, match="--voxel-size must be a finite number"):
         validate_config(MapConfig(seq="s", out="o", geometry=GeometryParams(voxel_size=float("nan"))))
+
+
+def test_non_finite_numbers_are_refused_with_or_without_a_declared_range():
+    """NaN and infinities are refused for every numeric option, those declared without a range included
+    (--tau-s, --tau-w), and for those with only a lower bound (--lambda-n, --alpha)."""
+    from panovocc_cli.mapping.config import MapConfig
+    from panovocc_cli.mapping.params import GeometryParams, OccupancyParams
+
+    for field, flag in (("tau_s", "--tau-s"), ("tau_w", "--tau-w"), ("lambda_n", "--lambda-n")):
+        for bad in (float("nan"), float("inf"), -float("inf")):
+            with pytest.raises(PanovoccError, match=f"^{flag} must be a finite number, got"):
+                validate_config(MapConfig(seq="s", out="o", occupancy=OccupancyParams(**{field: bad})))
+    with pytest.raises(PanovoccError, match="^--alpha must be a finite number, got inf$"):
+        validate_config(MapConfig(seq="s", out="o", geometry=GeometryParams(alpha=float("inf"))))
+    ok = MapConfig(seq="s", out="o", occupancy=OccupancyParams(tau_s=-0.5, tau_w=-1.0))
+    assert validate_config(ok) == ok  # any finite threshold is a threshold
 
 
 def test_choices_normalised_and_parity():

@@ -47,11 +47,15 @@ def unavailable_reason(requires: Iterable[str]) -> str | None:
 
 
 def select_named(registry: dict, spec: str, what: str) -> list:
-    """The entries of ``registry`` (name -> entry) named by the comma list ``spec`` (``all`` or empty: every
-    entry), in registry order; an unknown name is a :class:`PanovoccError` naming it and the choices
-    (``what``: the kind of entry, e.g. ``method``)."""
+    """The entries of ``registry`` (name -> entry) named by the comma list ``spec`` (``all``: every entry), in
+    registry order; an unknown name, or a list that names nothing (``''``, ``,,``), is a
+    :class:`PanovoccError` naming the option ``--{what}s`` and the choices (``what``: the kind of entry, e.g.
+    ``method``)."""
     names = [n.strip() for n in spec.split(",") if n.strip()]
-    if not names or names == ["all"]:
+    if not names:
+        raise PanovoccError(f"--{what}s {spec!r} names no {what}: expected all or a comma list of "
+                            f"{', '.join(registry)}")
+    if names == ["all"]:
         return list(registry.values())
     bad = [n for n in names if n not in registry]
     if bad:

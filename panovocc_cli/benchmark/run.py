@@ -81,15 +81,22 @@ def run_reproduce(cfg: ReproduceConfig, log=sys.stderr, client=None) -> dict:
     from .runner import run_tasks
     from .splits import check_scale, select_splits
     from .sweep import build_sweep
-    from .tasks import code_commit, code_fingerprint
+    from ..io.atomic import check_writable_folder
+    from .tasks import check_cache, code_commit, code_fingerprint
 
     cfg = validate_config(cfg)
     check_scale(cfg.scale)
+    splits, methods = select_splits(cfg.splits), select_methods(cfg.methods)
     out, cache = Path(cfg.out), Path(cfg.cache)
     check_out(out, cfg.overwrite)
     if cache.resolve() == out.resolve() or out.resolve() in cache.resolve().parents:
         raise PanovoccError("the cache must not be inside --out (the results folder is committed)", cache)
-    splits, methods = select_splits(cfg.splits), select_methods(cfg.methods)
+    if cache.resolve() in out.resolve().parents:
+        raise PanovoccError("--out must not be inside --cache (the results are kept, the cache may be removed)",
+                            out)
+    check_cache(cache)
+    for folder in (out, cache):  # a read-only or /proc path is refused now, not after the sweep
+        check_writable_folder(folder)
     sweep = build_sweep(splits, methods, cfg.scale)
     if cfg.progress:
         for (what, name), why in sweep.unavailable.items():

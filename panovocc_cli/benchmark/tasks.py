@@ -10,7 +10,8 @@ Cache layout (``CACHE/``)::
 
     KIND/KEY16/             a finished task's outputs (KEY16: the key's first 16 hex digits)
     KIND/KEY16/task.json    written last, inside the folder before it is renamed into place: the marker
-    KIND/.KEY16.tmp.*       a task in progress (removed when a sweep starts; a killed task leaves one)
+    KIND/.KEY16.tmp.*       a task in progress, flock'ed by its process while it runs (a sweep starting
+                            removes the unlocked ones: what a killed task left)
     _events/computed/       one empty file per task computed (KEY16.PID.NS): what actually ran
 
 :func:`execute` runs one task (on a Dask worker or in process): a task whose folder is complete is not
@@ -161,16 +162,60 @@ def topological(tasks) -> list[Task]:
     return list(seen.values())
 
 
+def check_cache(cache: str | Path) -> None:
+    """Refuse a ``--cache`` folder that holds anything but a task cache's entries (``KIND/`` folders and
+    ``_events/``): a sweep never writes its tasks into a folder of other files."""
+    cache = Path(cache)
+    if not cache.is_dir():
+        return
+    top = EVENTS.split("/")[0]
+    others = sorted(p.name for p in cache.iterdir() if not (p.is_dir() and p.name in (*KINDS, top)))
+    if others:
+        raise PanovoccError(f"is not a panovocc task cache (it holds {others[0]!r}); choose another --cache (an "
+                            "empty or new folder)", cache)
+
+
 def clean_stale(cache: str | Path) -> int:
-    """Remove temporary task folders a killed sweep left (``KIND/.KEY16.tmp.*``); returns how many."""
+    """Remove temporary task folders a killed sweep left (``KIND/.KEY16.tmp.*``); returns how many.
+
+    A task in progress holds an flock on its temporary folder (:func:`_live_tmp`), so a folder that is
+    locked belongs to a live run (this sweep's or another sharing the cache) and is kept; a killed task's
+    lock died with it.
+    """
+    from ..io.lock import take_flock
+
     n = 0
     for kind in KINDS:
         d = Path(cache) / kind
         if d.is_dir():
             for tmp in d.glob(".*.tmp.*"):
-                shutil.rmtree(tmp, ignore_errors=True)
+                try:
+                    fd = take_flock(tmp)
+                except FileNotFoundError:  # finished or removed meanwhile
+                    continue
+                except OSError:  # not a folder we can open: not ours to judge; a leftover all the same
+                    fd = -1
+                if fd is None:
+                    continue  # live
+                try:
+                    shutil.rmtree(tmp, ignore_errors=True)
+                finally:
+                    if fd >= 0:
+                        os.close(fd)
                 n += 1
     return n
+
+
+def _live_tmp(parent: Path, key: str) -> tuple[Path, int]:
+    """A new temporary task folder in ``parent`` and an fd holding its flock (closing it marks it stale)."""
+    from ..io.lock import take_flock
+
+    while True:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.tmp.", dir=parent))
+        try:
+            return tmp, take_flock(tmp, wait=True)  # waits while a cleaner that got there first removes it
+        except FileNotFoundError:
+            continue
 
 
 # --------------------------------------------------------------------------------------- execution
@@ -195,7 +240,7 @@ def execute(task: dict, cache: str, *deps_done: Any) -> dict:
                             f"the sweep ({task['code'][:12]}); workers and client must share one panovocc checkout")
     final = task_folder(cache, kind, key)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.tmp.", dir=final.parent))
+    tmp, held = _live_tmp(final.parent, key)
     t0 = time.perf_counter()
     try:
         deps = [task_folder(cache, d["kind"], d["key"]) for d in task["deps"]]
@@ -212,6 +257,7 @@ def execute(task: dict, cache: str, *deps_done: Any) -> dict:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+        os.close(held)
     ev = Path(cache) / EVENTS
     ev.mkdir(parents=True, exist_ok=True)
     (ev / f"{key[:16]}.{os.getpid()}.{time.time_ns()}").touch()

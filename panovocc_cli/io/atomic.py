@@ -104,6 +104,42 @@ def check_output_path(path: str | Path, folder: bool = False) -> None:
         raise PanovoccError("is a folder; expected an output file path", path)
 
 
+def _first_missing(path: Path) -> Path | None:
+    """The outermost of ``path`` and its ancestors that does not exist (what ``mkdir(parents=True)`` makes)."""
+    created = None
+    for p in [path, *path.parents]:
+        if p.exists() or p.is_symlink():
+            break
+        created = p
+    return created
+
+
+def check_writable_folder(path: str | Path) -> None:
+    """Refuse, before any work, an output folder that cannot be written (a read-only file system, ``/proc``,
+    no permission): the folder (and missing parents) is made and a file created in it, then what this made
+    is removed again.
+
+    Raises
+    ------
+    PanovoccError naming the folder: ``cannot write (REASON)``.
+    """
+    import tempfile
+
+    path = Path(path)
+    check_output_path(path, folder=True)
+    created = _first_missing(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=".panovocc-probe.", dir=path)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as e:
+        raise _write_error(e, path) from None
+    finally:
+        if created is not None:
+            shutil.rmtree(created, ignore_errors=True)
+
+
 @contextlib.contextmanager
 def output_folder(path: str | Path) -> Iterator[Path]:
     """Create the output folder ``path`` (and missing parents) for the block; remove what it created on failure.
@@ -114,11 +150,7 @@ def output_folder(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     check_output_path(path, folder=True)
-    created = None
-    for p in [path, *path.parents]:
-        if p.exists() or p.is_symlink():
-            break
-        created = p
+    created = _first_missing(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
         yield path

@@ -493,15 +493,20 @@ class DeltaLog:
     between ``start`` (where a memory snapshot is; ``(0, 0)``: the log's beginning) and that end, as
     (kind, frame id, location). A ``start`` beyond the committed end is refused (:class:`PanovoccError`):
     the caller then rebuilds from the beginning.
+
+    A journal entry the shards no longer reach (a shard file truncated below it) is refused
+    (:class:`PanovoccError`), unless ``roll_back``: then the log is rolled back to the last entry they reach,
+    as a killed run's uncommitted tail is (``map --resume`` maps the frames after it again). The journal's
+    entries after the committed end (a torn entry, or those rolled back) are cut too.
     """
 
-    def __init__(self, folder: str | Path, start: tuple[int, int] = (0, 0)):
+    def __init__(self, folder: str | Path, start: tuple[int, int] = (0, 0), roll_back: bool = False):
         self.folder = Path(folder)
         (self.folder / DELTAS_DIR).mkdir(parents=True, exist_ok=True)
         self.journal = self.folder / DELTAS_DIR / JOURNAL_NAME
         self.records: list[tuple[int, int, tuple[int, int, int]]] = []
         self._f = None
-        self.committed = self._committed_end()
+        self.committed = self._committed_end(roll_back)
         self._cut(*self.committed)
         if _pos_key(start) > self.committed:
             raise PanovoccError(f"the memory snapshot is at {list(start)} in the delta log, past its last commit "
@@ -510,12 +515,13 @@ class DeltaLog:
         self.records = self._scan(_pos_key(start), self.committed)
 
     # -- reading ---------------------------------------------------------------------------------
-    def _committed_end(self) -> tuple[int, int]:
-        """The last valid journal entry whose position the shards reach ((0, 0) without any)."""
+    def _committed_end(self, roll_back: bool = False) -> tuple[int, int]:
+        """The last valid journal entry whose position the shards reach ((0, 0) without any); the journal
+        is cut after it. An entry they do not reach is refused unless ``roll_back``."""
         if not self.journal.is_file():
             return 0, 0
         data = self.journal.read_bytes()
-        best = (0, 0)
+        best, valid = (0, 0), 0
         for i in range(0, len(data) - _ENTRY.size + 1, _ENTRY.size):
             e = data[i:i + _ENTRY.size]
             magic, shard, end, crc = _ENTRY.unpack(e)
@@ -523,9 +529,14 @@ class DeltaLog:
                 break
             p = shard_path(self.folder, shard)
             if end > 0 and (not p.is_file() or p.stat().st_size < end):
+                if roll_back:
+                    break
                 raise PanovoccError(f"the delta log ends before its commit at shard {shard} byte {end} (the map "
                                     "folder was truncated or changed)", p)
-            best = (int(shard), int(end))
+            best, valid = (int(shard), int(end)), valid + 1
+        if len(data) > valid * _ENTRY.size:  # later entries would be read again once new records reach them
+            with open(self.journal, "r+b") as f:
+                f.truncate(valid * _ENTRY.size)
         return best
 
     def _scan(self, start: tuple[int, int], stop: tuple[int, int]) -> list:

@@ -107,8 +107,8 @@ def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | 
     timestamps are matched to the frames' (``stamps``, default the frame indices 0 .. n-1, as
     ``write_tum`` writes them) by nearest time within ``max_diff`` (default
     :data:`panovocc_cli.config.MATCH_MAX_DIFF`); extra poses are ignored, and a frame
-    without a pose is an error listing the first such frames. A TUM file whose stamps match no frame
-    index at all (clock seconds) and that holds exactly one pose per frame is taken in time order.
+    without a pose is an error listing the first such frames. A TUM file whose stamps match no frame at
+    all (clock seconds) is refused, even with one pose per frame: which pose is which frame is never guessed.
 
     Returns
     -------
@@ -122,12 +122,16 @@ def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | 
         return T
     frame_t = np.arange(n_frames, dtype=np.float64) if stamps is None else np.asarray(stamps, np.float64)
     ia, ib = match_timestamps(frame_t, t, MATCH_MAX_DIFF if max_diff is None else max_diff)
-    if len(ia) == 0 and stamps is None and len(T) == n_frames:  # clock stamps, frames without: time order
-        return T[np.argsort(t, kind="stable")]
+    max_diff = MATCH_MAX_DIFF if max_diff is None else max_diff
+    if len(ia) == 0 and n_frames:
+        what = "frame indices 0..N-1" if stamps is None else "frame timestamps"
+        raise PanovoccError(f"TUM timestamps ({t.min():.6g} .. {t.max():.6g}) match none of the {what}: no pose "
+                            f"within {max_diff} of any (clock times?); write the trajectory with the frames' "
+                            "timestamps, or in NICE-SLAM form (one line a frame)", path)
     if len(ia) < n_frames:
         missing = sorted(set(range(n_frames)) - set(ia.tolist()))
         shown = ", ".join(map(str, missing[:8])) + (", ..." if len(missing) > 8 else "")
-        raise PanovoccError(f"no pose within {MATCH_MAX_DIFF if max_diff is None else max_diff} of the timestamps "
+        raise PanovoccError(f"no pose within {max_diff} of the timestamps "
                             f"of {len(missing)} of {n_frames} frames ({shown}); TUM timestamps are matched to "
                             "frame indices 0..N-1", path)
     out = np.empty((n_frames, 4, 4))

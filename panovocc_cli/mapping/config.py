@@ -21,7 +21,7 @@ import numpy as np
 
 from ..config import DEFAULT_SEED, MAX_SEED, MAX_STRIDE, option, typed_from_json
 from ..errors import PanovoccError
-from ..geometry.lattice import local_origin
+from ..geometry.lattice import key_reach, local_origin
 from ..semantics.gsc import GSCParams
 from ..semantics.params import EvidenceWeights
 from ..semantics.registry import SEGMENTER_AUTO, SEGMENTER_NONE
@@ -93,6 +93,14 @@ class SemanticParams:
         gsc = dataclasses.replace(mapper_gsc_params(), **d.pop("gsc", {}))
         weights = EvidenceWeights(**d.pop("weights", {}))
         return cls(gsc=gsc, weights=weights, **d)
+
+
+def check_key_reach(g: GeometryParams) -> None:
+    """Refuse a voxel size whose keys cannot hold one frame's reach (``--max-range``) around the origin."""
+    if key_reach(g.voxel_size) <= g.max_range:
+        raise PanovoccError(f"--voxel-size {g.voxel_size:g} m is too small: voxel keys reach "
+                            f"{key_reach(g.voxel_size):.3g} m from the map's origin, less than --max-range "
+                            f"{g.max_range:g} m")
 
 
 def parse_origin(text) -> list[float]:
@@ -243,6 +251,7 @@ class MapperConfig:
         g = self.geometry
         if not (np.isfinite(g.voxel_size) and g.voxel_size > 0):
             raise PanovoccError(f"--voxel-size must be positive, got {g.voxel_size}")
+        check_key_reach(g)
         if int(g.stride) < 1:
             raise PanovoccError(f"stride must be >= 1, got {g.stride}")
         if g.kernel not in KERNELS:

@@ -38,6 +38,8 @@ docs/mapping.md, "Delta store size").
 from __future__ import annotations
 
 import dataclasses
+import functools
+import threading
 from pathlib import Path
 from typing import Callable
 
@@ -45,6 +47,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from ..frame import Frame
+from ..geometry.poses import check_rigid
 from ..grid import Grid
 from ..io import mapstore
 from ..io.poses import write_poses
@@ -98,11 +101,20 @@ def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = No
     return FrameDelta(tuple(parts), observation)
 
 
-def _check_pose(T, what: str) -> np.ndarray:
-    T = np.asarray(T, np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise PanovoccError(f"{what}: T_world_cam must be a finite (4, 4) matrix, got shape {T.shape}")
-    return T
+def _locked(method):
+    """Run ``method`` holding the mapper's lock (one call that changes or reads the map at a time)."""
+    @functools.wraps(method)
+    def run(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    return run
+
+
+def _legacy_origin(config: MapperConfig, n_frames: int) -> MapperConfig:
+    """A map made before local origins (``origin`` None, frames kept) has the world's: set it to zeros."""
+    if config.origin is None and n_frames:
+        config.origin = [0.0, 0.0, 0.0]
+    return config
 
 
 class Mapper:
@@ -118,18 +130,24 @@ class Mapper:
     frame_source : callable ``frame_id -> Frame`` or None
         Where :meth:`revise` gets a frame's data again; None keeps each integrated Frame (module docstring).
         A public attribute: it may be set after :meth:`load`.
+
+    Thread safety: one lock (a ``threading.RLock``) is held by every call that changes or reads the map
+    (integrate, revise, remove, pose, frame_ids, export, prediction, checkpoint, save, close), so a SLAM
+    thread may revise frames while another thread integrates: the calls run one at a time, whole, and the
+    memory is the same as if they had been made in that order from one thread. :attr:`memory` is the live
+    object: read it only from the thread that changes the map.
     """
 
     def __init__(self, config: MapperConfig, *, folder: str | Path | None = None,
                  frame_source: Callable[[int], Frame] | None = None, _rpu: ReversibleMemory | None = None):
         self.config = config.check()
+        self._lock = threading.RLock()
         if _rpu is None:
             if folder is not None and has_store(folder):
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", folder)
             _rpu = ReversibleMemory(VoxelMemory(config.geometry.voxel_size, memory_channels(config)), DeltaStore(folder))
         self._rpu = _rpu
-        if self.config.origin is None and len(_rpu.store):  # a map made before local origins: the world's
-            self.config.origin = [0.0, 0.0, 0.0]
+        _legacy_origin(self.config, len(_rpu.store))
         self.frame_source = frame_source
         self._frames: dict[int, Frame] = {}
         self._rays: dict = {}
@@ -146,13 +164,15 @@ class Mapper:
     @property
     def frame_ids(self) -> list[int]:
         """Ids of the frames the map holds, ascending."""
-        return self._rpu.store.ids()
+        with self._lock:
+            return self._rpu.store.ids()
 
     @property
     def folder(self) -> Path | None:
         """The folder the deltas live in (None: in RAM)."""
         return self._rpu.store.folder
 
+    @_locked
     def pose(self, frame_id: int) -> np.ndarray:
         """(4, 4) float64 T_world_cam the frame's kept delta was computed under."""
         if frame_id not in self._rpu.store:
@@ -160,7 +180,8 @@ class Mapper:
         return self._rpu.store.poses[int(frame_id)].copy()
 
     def __len__(self) -> int:
-        return len(self._rpu.store)
+        with self._lock:
+            return len(self._rpu.store)
 
     # -- frames ----------------------------------------------------------------------------------
     def _local(self, frame: Frame) -> Frame:
@@ -202,6 +223,7 @@ class Mapper:
                 rays = self._rays[frame.camera] = frame.camera.rays()
         return frame_delta(frame, self.config, rays, observation)
 
+    @_locked
     def integrate(self, frame: Frame) -> int:
         """Add a frame; returns its id (``frame.index`` when set, else the next unused id).
 
@@ -223,6 +245,7 @@ class Mapper:
         self._next_id = max(self._next_id, fid + 1)
         return fid
 
+    @_locked
     def revise(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None = None) -> bool:
         """Move frame ``frame_id`` to pose ``T_world_cam`` (4, 4): its delta is recomputed and swapped in.
 
@@ -234,7 +257,7 @@ class Mapper:
         ahead: ``panovocc revise``); its pose and logits are ignored.
         """
         fid = int(frame_id)
-        T = _check_pose(T_world_cam, f"frame {fid}")
+        T = check_rigid(T_world_cam, f"frame {fid}: T_world_cam")
         if np.array_equal(T, self.pose(fid)):
             return False
         if frame is None:
@@ -250,6 +273,7 @@ class Mapper:
             self._frames[fid] = frame
         return True
 
+    @_locked
     def remove(self, frame_id: int) -> None:
         """Take frame ``frame_id`` out: the memory equals that of a map that never had it."""
         self._rpu.remove(int(frame_id))
@@ -258,6 +282,7 @@ class Mapper:
             self.empty_frames.remove(int(frame_id))
 
     # -- outputs ---------------------------------------------------------------------------------
+    @_locked
     def export(self) -> MapExport:
         """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory."""
         keys, ch = self.memory.nonzero()
@@ -270,17 +295,20 @@ class Mapper:
         return self.export().grid
 
     # -- persistence -----------------------------------------------------------------------------
+    @_locked
     def checkpoint(self, *, background: bool = False) -> None:
         """Commit the folder's delta log: what a reopened map holds from now on. Writes one small record
         (no memory file, no pose file), so its cost does not grow with the map; ``background``: on the
         delta writer thread (:meth:`close` waits for it and re-raises its error)."""
         self._rpu.checkpoint(background)
 
+    @_locked
     def save(self, folder: str | Path | None = None, *, background: bool = False) -> Path:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 
         Writes the deltas not yet there, then ``memory.npz`` (the commit point), then ``config.json``
-        (unless the folder's config already holds this mapper's parameters, e.g. a map run's) and
+        (unless the folder's config already holds this mapper's parameters, e.g. a map run's; a config.json
+        that cannot be read or holds other parameters is refused before anything is written) and
         ``poses.txt`` (the kept frames' poses in id order). Deltas kept in RAM move to ``folder``.
         ``background=True``: ``memory.npz`` (of the memory as it is at the call) is written on the delta
         writer thread while the caller goes on (the map command's checkpoints); it is on disk once
@@ -289,24 +317,40 @@ class Mapper:
         folder = Path(folder) if folder is not None else self.folder
         if folder is None:
             raise PanovoccError("Mapper.save needs a folder (this mapper keeps its deltas in RAM)")
+        write_config = not self._holds_my_config(folder)  # refuses before anything is written
         self._rpu.save(folder, background)
-        cfg_path = folder / mapstore.CONFIG_NAME
-        try:
-            same = cfg_path.is_file() and MapperConfig.from_json(mapstore.read_map_config(folder)) == self.config
-        except PanovoccError:
-            same = False
-        if not same:
+        if write_config:
             mapstore.write_map_config(folder, self.config.to_json())
         write_poses(folder / "poses.txt", self._rpu.poses()[1])
         return folder
 
+    def _holds_my_config(self, folder: Path) -> bool:
+        """Whether ``folder/config.json`` holds this mapper's parameters (a map run's, or an earlier save's):
+        True; no config.json: False. One that cannot be read, or holds other parameters, is never overwritten:
+        :class:`PanovoccError`."""
+        path = folder / mapstore.CONFIG_NAME
+        if not (path.exists() or path.is_symlink()):
+            return False
+        try:
+            theirs = MapperConfig.from_json(mapstore.read_map_config(folder), path)
+        except PanovoccError as e:
+            raise PanovoccError(f"{e} -- Mapper.save does not overwrite a config.json it cannot read; save to "
+                                "another folder") from None
+        if _legacy_origin(theirs, len(self)) != self.config:
+            raise PanovoccError("holds another map's parameters; Mapper.save does not overwrite it (save to "
+                                "another folder)", path)
+        return True
+
     @classmethod
-    def load(cls, folder: str | Path, frame_source: Callable[[int], Frame] | None = None) -> "Mapper":
+    def load(cls, folder: str | Path, frame_source: Callable[[int], Frame] | None = None, *,
+             roll_back: bool = False) -> "Mapper":
         """Reopen a saved map (a :meth:`save` folder or a ``panovocc map`` output). Its deltas stay in
-        ``folder``; revising a frame needs ``frame_source``."""
+        ``folder``; revising a frame needs ``frame_source``. ``roll_back``: a delta log truncated below a
+        commit is rolled back to the last commit it reaches (``map --resume``: the map then holds fewer
+        frames, mapped again by the caller); else refused."""
         folder = Path(folder)
         config = MapperConfig.from_json(mapstore.read_map_config(folder), folder / mapstore.CONFIG_NAME)
-        rpu = ReversibleMemory.load(folder, memory_channels(config), config.geometry.voxel_size)
+        rpu = ReversibleMemory.load(folder, memory_channels(config), config.geometry.voxel_size, roll_back)
         specs = tuple(rpu.memory.specs)
         if specs != memory_channels(config) or rpu.memory.voxel_size != config.geometry.voxel_size:
             rpu.close()
@@ -314,6 +358,7 @@ class Mapper:
                                 "match config.json", folder / mapstore.MEMORY_NAME)
         return cls(config, frame_source=frame_source, _rpu=rpu)
 
+    @_locked
     def close(self) -> None:
         """Finish pending delta writes and stop the writer thread (the mapper stays usable)."""
         self._rpu.close()

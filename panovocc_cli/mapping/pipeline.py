@@ -41,7 +41,7 @@ from ..io.poses import frame_poses, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
 from .config import (PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig, MapperConfig, ReviseConfig,
-                     SemanticParams)
+                     SemanticParams, check_key_reach)
 from .export import point_colors
 from .mapper import Mapper
 from .rpu import has_store
@@ -278,6 +278,7 @@ def resolve_origin(cfg: MapConfig, poses: np.ndarray) -> MapConfig:
     outside it (``poses`` (n, 4, 4) float64, world)."""
     from ..geometry.lattice import key_reach, local_origin
 
+    check_key_reach(cfg.geometry)
     h = cfg.geometry.voxel_size
     if cfg.origin is not None:  # the lattice point nearest the given origin
         o = local_origin(np.asarray(cfg.origin, np.float64) + 0.5 * h, h)
@@ -335,6 +336,14 @@ def _writer_lock(out: Path):
                 for tmp in (out / mapstore.DELTAS_DIR).glob(pattern):
                     tmp.unlink(missing_ok=True)
         yield
+
+
+def _require_deltas(out: Path) -> None:
+    """revise and ``map --resume`` re-read the frames' deltas: a map folder without ``deltas/`` (a benchmark
+    cache's map keeps only its outputs) is refused before anything is written."""
+    if not (out / mapstore.DELTAS_DIR).is_dir():
+        raise PanovoccError(f"{mapstore.DELTAS_DIR}/ not found: this map's delta store was removed (only its outputs "
+                            "are left), so it cannot be revised or resumed; map the sequence again", out)
 
 
 def load_config(out: str | Path) -> MapConfig:
@@ -401,7 +410,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
         if has_store(out):
-            mapper = Mapper.load(out, frame_source=frames.read)
+            _require_deltas(out)
+            mapper = Mapper.load(out, frame_source=frames.read, roll_back=True)  # a truncated log: as if killed
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))
@@ -431,6 +441,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         out = Path(cfg.out)
         check_outputs([(out, "map", True), (cfg.frame_times, "frame times", False)], overwrite, inputs=map_inputs(cfg))
         _check_inputs(cfg, seq)  # every frame present with the right size and type, before the first write
+        if frames.segmenter is not None:
+            frames.segmenter.prepare()  # a network's weights and device: a failure here leaves nothing
         if not (out.exists() or out.is_symlink()):  # a run that fails before config.json leaves nothing behind
             held.callback(_remove_unless_started, out)
         out.mkdir(parents=True, exist_ok=True)
@@ -496,8 +508,11 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if times is not None:
                 times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
                               resident_mb()))
-    except (PanovoccError, OSError) as e:  # found mid-run: what is on disk is a resumable run, say so
+    except (PanovoccError, OSError) as e:  # found mid-run: say what is on disk and what can be done with it
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
+        if cfg.poses == POSES_SLAM:  # --resume refuses these (the tracker's state is not saved)
+            raise PanovoccError(f"{what} -- the --poses slam run in {out} stopped and cannot be resumed: fix the "
+                                f"input and start over with --overwrite") from None
         raise PanovoccError(f"{what} -- the map in {out} is resumable: fix the input and run "
                             f"panovocc map --resume {out} (or start over with --overwrite)") from None
     finally:
@@ -566,6 +581,7 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     cfg = load_config(out)
     n_seq = read_meta(cfg.seq).frames
     new_poses = frame_poses(poses_path, n_seq)  # map --poses's reader: TUM lines matched to frames by timestamp
+    _require_deltas(out)
     mapper = Mapper.load(out)
     try:
         k = len(mapper)

@@ -421,13 +421,16 @@ class ReversibleMemory:
         self.store.rollback()
 
     @classmethod
-    def load(cls, folder: str | Path, channels=None, voxel_size: float | None = None) -> "ReversibleMemory":
+    def load(cls, folder: str | Path, channels=None, voxel_size: float | None = None,
+             roll_back: bool = False) -> "ReversibleMemory":
         """Reopen a folder; the deltas stay on disk there (read back when revised or removed).
 
         From the memory snapshot when ``deltas/snapshot.npz`` matches it, replaying the log's committed
         records after it; else the memory is rebuilt from the whole log (``channels`` and ``voxel_size``
         give its layout when there is no ``memory.npz``). The log's uncommitted tail is cut off. A map
-        made before the log (one delta file a frame) loads as it was saved."""
+        made before the log (one delta file a frame) loads as it was saved. ``roll_back``: a log whose
+        shards end before a commit (a truncated file) is rolled back to the last commit they reach
+        (:class:`~panovocc_cli.io.mapstore.DeltaLog`); else refused."""
         folder = Path(folder)
         mem_path = folder / mapstore.MEMORY_NAME
         has_log = bool(mapstore.shard_ids(folder))
@@ -440,14 +443,14 @@ class ReversibleMemory:
                 settle_staged(folder, committed)
                 memory = VoxelMemory.from_arrays(arrays, mem_path)
                 locs = {fid: (LEGACY, 0, 0) for fid in committed}
-                log = mapstore.DeltaLog(folder)
+                log = mapstore.DeltaLog(folder, roll_back=roll_back)
                 return cls(memory, DeltaStore(folder, _log=log, _locs=locs, _poses=committed))
             if snap is not None:
                 locs = {int(i): tuple(int(v) for v in loc) for i, loc in zip(snap["frame_ids"], snap["locations"])}
                 if set(locs) != set(committed):
                     raise PanovoccError("deltas/snapshot.npz does not list the frames memory.npz holds", mem_path)
                 try:
-                    log = mapstore.DeltaLog(folder, tuple(int(v) for v in snap["log_end"]))
+                    log = mapstore.DeltaLog(folder, tuple(int(v) for v in snap["log_end"]), roll_back)
                 except PanovoccError:  # the snapshot was written by a save that did not commit: rebuild
                     log = None
                 if log is not None:
@@ -460,7 +463,8 @@ class ReversibleMemory:
         if channels is None or voxel_size is None:
             raise PanovoccError("memory.npz not found (not a panovocc map folder, or the run stopped before "
                                 "its first checkpoint)", mem_path)
-        log = mapstore.DeltaLog(folder)  # no usable snapshot: the memory is the sum of the committed records
+        # no usable snapshot: the memory is the sum of the committed records
+        log = mapstore.DeltaLog(folder, roll_back=roll_back)
         rm = cls(VoxelMemory(voxel_size, channels), DeltaStore(folder, _log=log))
         rm._replay(log.records)
         return rm

@@ -459,6 +459,20 @@ def pick_device(device: str) -> str:
     return device
 
 
+def _bad_checkpoint_errors() -> tuple:
+    """What loading a file that is not a checkpoint of the model raises (torch.load's unpickler, safetensors)."""
+    import pickle
+
+    errors = [RuntimeError, ValueError, KeyError, OSError, EOFError, pickle.UnpicklingError]
+    try:
+        from safetensors import SafetensorError
+
+        errors.append(SafetensorError)
+    except ImportError:
+        pass
+    return tuple(errors)
+
+
 def load_dense_clip(spec: ClipSpec, device: str | None = None) -> DenseClip:
     """Build the network of ``spec`` on ``device`` (default: the spec's, ``auto`` resolved)."""
     from ._torch_compat import import_open_clip
@@ -466,6 +480,7 @@ def load_dense_clip(spec: ClipSpec, device: str | None = None) -> DenseClip:
     open_clip = import_open_clip()
     where = resolve_weights(spec)
     dev = pick_device(device or spec.device)
+    bad_checkpoint = _bad_checkpoint_errors()
     try:
         if where.checkpoint is None:
             model = open_clip.create_model(where.name, device=dev, require_pretrained=True)
@@ -473,7 +488,7 @@ def load_dense_clip(spec: ClipSpec, device: str | None = None) -> DenseClip:
             model = open_clip.create_model(where.name, pretrained=where.checkpoint, device=dev,
                                            force_quick_gelu=where.quick_gelu, require_pretrained=True)
         tokenizer = open_clip.get_tokenizer(where.name)
-    except (RuntimeError, ValueError, KeyError, OSError) as e:  # a checkpoint that does not fit the model
+    except bad_checkpoint as e:  # a checkpoint that does not fit the model, or is no checkpoint at all
         msg = str(e).splitlines()[0][:300] if str(e) else type(e).__name__
         raise PanovoccError(f"cannot load CLIP weights for {spec.model or 'the folder'} ({msg})",
                             where.checkpoint or spec.weights) from None
@@ -495,6 +510,11 @@ class ClipSegmenter(Segmenter):
         self.spec = str(self.cfg)
         self._net: DenseClip | None = None
         self._tiled = None
+
+    def prepare(self) -> None:
+        """Load the network (weights and device checked: a bad checkpoint or ``device=cuda`` without a GPU
+        fails here, before a command writes anything)."""
+        self.net
 
     @property
     def net(self) -> DenseClip:

@@ -29,6 +29,11 @@ class Segmenter(ABC):
 
     spec: str = ""
 
+    def prepare(self) -> None:
+        """Load now what the first frame would (a network's weights, its device), so that a segmenter
+        that cannot run fails (:class:`PanovoccError`) before a command writes anything. Default: nothing
+        to load."""
+
     @abstractmethod
     def logits(self, rgb: np.ndarray, vocab: Sequence[str], *, frame_id=None) -> np.ndarray:
         """Per-pixel logits of one ERP frame.

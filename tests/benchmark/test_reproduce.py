@@ -2,6 +2,7 @@
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 
@@ -146,3 +147,48 @@ def test_a_failed_task_is_reported_and_retried_on_rerun(tiny_sweep, tmp_path, mo
     s = reproduce(out, cache, overwrite=True)
     new = {k: v - events.get(k, 0) for k, v in computed_events(cache).items() if v != events.get(k, 0)}
     assert s["failed"] == [] and s["computed"] == len(new) == 3  # the map, its eval, the picture that shows it
+
+
+@pytest.mark.parametrize("case", ["splits-empty", "splits-commas", "methods-empty", "out-in-proc", "out-in-cache",
+                                  "foreign-cache", "out-read-only"])
+def test_bad_reproduce_options_are_refused_before_any_work(case, tmp_path, capsys, monkeypatch):
+    """Every check of reproduce's options runs before the sweep starts: one line, exit 2, nothing made."""
+    import os
+
+    from cli_helpers import run_cli, snapshot
+
+    from panovocc_cli.benchmark import runner
+
+    def no_sweep(*a, **k):
+        raise AssertionError("the sweep started")
+
+    monkeypatch.setattr(runner, "run_tasks", no_sweep)
+    out, cache = tmp_path / "results", tmp_path / "cache"
+    args, expect = [], ""
+    if case == "splits-empty":
+        args, expect = ["--splits", ""], "--splits"
+    elif case == "splits-commas":
+        args, expect = ["--splits", ",,"], "--splits"
+    elif case == "methods-empty":
+        args, expect = ["--methods", " "], "--methods"
+    elif case == "out-in-proc":
+        out, expect = Path("/proc/panovocc-results"), "cannot write"
+    elif case == "out-in-cache":
+        out, expect = cache / "results", "inside --cache"
+    elif case == "foreign-cache":
+        cache.mkdir()
+        (cache / "thesis.tex").write_text("my thesis")
+        expect = "not a panovocc task cache"
+    elif case == "out-read-only":
+        if os.geteuid() == 0:
+            pytest.skip("root writes into read-only folders")
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o555)
+        out, expect = ro / "results", "cannot write"
+    before = snapshot(tmp_path)
+    code, _, err = run_cli(capsys, ["reproduce", "--small", "--workers", "0", "--quiet", "--out", out,
+                                    "--cache", cache, *args])
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert expect in err, err
+    assert snapshot(tmp_path) == before and not out.exists()

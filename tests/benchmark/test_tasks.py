@@ -66,3 +66,27 @@ def test_execute_refuses_other_code(tmp_path):
     with pytest.raises(PanovoccError, match="other code"):
         execute(t.to_dict(), str(tmp_path))
     assert not (tmp_path / "synth").exists()
+
+
+def test_a_second_runners_clean_keeps_a_live_runs_temporaries(tmp_path, monkeypatch):
+    """Two sweeps share a cache: the second one's clean_stale (at its start) runs while the first computes a
+    task in its temporary folder; that folder is live and stays, the task completes, and a killed run's
+    leftover is still removed."""
+    from panovocc_cli.benchmark import tasks
+
+    cache = tmp_path / "cache"
+    killed = cache / "synth" / ".0123456789abcdef.tmp.killed"
+    killed.mkdir(parents=True)
+    seen = {}
+
+    def stage(p, out, deps, cache_):
+        seen["removed"] = clean_stale(cache_)  # a second runner starting now
+        (out / "scene.txt").write_text("done")
+        return {"scene": "scene.txt"}, "panovocc synth", {}
+
+    monkeypatch.setitem(tasks.STAGES, "synth", stage)
+    t = Task("synth", {"seed": 1}, label="synth live", code="")
+    r = execute(t.to_dict(), str(cache))
+    assert r["status"] == "computed" and (t.folder(cache) / "scene.txt").read_text() == "done"
+    assert seen["removed"] == 1 and not killed.exists()
+    assert list((cache / "synth").glob(".*.tmp.*")) == []

@@ -610,6 +610,14 @@ CASES = [
     C("option", "map-kappa-negative", lambda b, t: ["map", b / "seq", t / "out", "--kappa", "-1", *Q], "kappa"),
     C("option", "map-stride-huge", lambda b, t: ["map", b / "seq", t / "out", "--stride", "100000", *Q], "stride"),
     C("option", "map-voxel-size-0", lambda b, t: ["map", b / "seq", t / "out", "--voxel-size", "0", *Q], "voxel"),
+    C("option", "map-voxel-size-tiny", lambda b, t: ["map", b / "seq", t / "out", "--voxel-size", "1e-9", *Q],
+      "--voxel-size 1e-09 m is too small"),
+    C("option", "map-tau-s-nan", lambda b, t: ["map", b / "seq", t / "out", "--tau-s", "nan", *Q],
+      "--tau-s must be a finite number"),
+    C("option", "map-tau-w-inf", lambda b, t: ["map", b / "seq", t / "out", "--tau-w", "inf", *Q],
+      "--tau-w must be a finite number"),
+    C("option", "map-lambda-n-inf", lambda b, t: ["map", b / "seq", t / "out", "--lambda-n", "inf", *Q],
+      "--lambda-n must be a finite number"),
     C("option", "map-max-range-0", lambda b, t: ["map", b / "seq", t / "out", "--max-range", "0", *Q], "max-range"),
     C("option", "map-kernel", lambda b, t: ["map", b / "seq", t / "out", "--kernel", "blob", *Q], "kernel"),
     C("option", "map-rule", lambda b, t: ["map", b / "seq", t / "out", "--rule", "vote", *Q], "rule"),
@@ -646,6 +654,9 @@ CASES = [
       lambda b, t: ["map", b / "seq", t / "out", "--segmenter", f"clip:ViT-B-16@{t / 'no.bin'}", *Q], "not found"),
     C("vocab", "clip-folder-without-config",
       lambda b, t: ["map", b / "seq", t / "out", "--segmenter", f"clip:{nonempty(t, 'w')}", *Q], "open_clip_config"),
+    C("vocab", "clip-weights-junk",
+      lambda b, t: ["map", b / "seq", t / "out", "--segmenter",
+                    f"clip:ViT-B-16@{write(t / 'junk.bin', bytes(range(256)) * 20)}", *Q], "cannot load CLIP weights"),
     C("vocab", "clip-bad-option",
       lambda b, t: ["map", b / "seq", t / "out", "--segmenter", "clip,rig=sphere", *Q], "rig"),
     C("query", "query-not-a-map", lambda b, t: ["query", b / "seq", "a place to sleep"], "not a panovocc map"),
@@ -679,11 +690,16 @@ CASES = [
     C("mapdir", "revise-delta-log-truncated",
       lambda b, t: ["revise", (lambda m: _truncate_half(m / "deltas" / "shard-000000.pvd") or m)(map_copy(b, t)),
                     poses_file(t, ident_lines(4)), *Q], "delta log ends before"),
-    C("mapdir", "resume-delta-log-truncated",
-      lambda b, t: ["map", "--resume", (lambda m: _truncate_half(m / "deltas" / "shard-000000.pvd") or m)(
-          map_copy(b, t)), *Q], "delta log ends before"),
     C("mapdir", "resume-format-version-99",
       lambda b, t: ["map", "--resume", map_with_config(b, t, format_version=99), *Q], "format_version"),
+    C("mapdir", "revise-without-deltas",
+      lambda b, t: ["revise", (lambda m: shutil.rmtree(m / "deltas") or m)(map_copy(b, t)), map_poses(b), *Q],
+      "deltas"),
+    C("mapdir", "revise-without-deltas-or-memory",
+      lambda b, t: ["revise", (lambda m: shutil.rmtree(m / "deltas") or (m / "memory.npz").unlink() or m)(
+          map_copy(b, t)), map_poses(b), *Q], "deltas"),
+    C("mapdir", "resume-without-deltas",
+      lambda b, t: ["map", "--resume", (lambda m: shutil.rmtree(m / "deltas") or m)(map_copy(b, t)), *Q], "deltas"),
     C("mapdir", "resume-not-a-map", lambda b, t: ["map", "--resume", nonempty(t), *Q], "config.json"),
     # --- baselines (issue 12)
     C("baselines", "run-seq-missing", lambda b, t: ["baselines", "run", "persp-tsdf", t / "nosuch", t / "o", *Q],
@@ -727,6 +743,10 @@ CASES = [
     C("traj", "map-poses-tum-unmatched",
       lambda b, t: ["map", b / "seq", t / "out", "--poses",
                     write(t / "p.tum", "".join(f"{i + 0.5} 0 0 0 0 0 0 1\n" for i in range(3))), *Q], "no pose within"),
+    C("traj", "map-poses-tum-clock-stamps",
+      lambda b, t: ["map", b / "seq", t / "out", "--poses",
+                    write(t / "p.tum", "".join(f"{1305031102.0 + 0.033 * i} 0 0 1.5 0 0 0 1\n" for i in range(4))),
+                    *Q], "match none of the frame indices"),
     C("traj", "perturb-onto-input", lambda b, t: ["traj", "perturb", b / "seq" / "poses.txt", b / "seq" / "poses.txt"],
       "the input"),
 ]
@@ -774,6 +794,19 @@ def check_case(capsys, base: Path, t: Path, case: Case) -> None:
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_bad_input(capsys, base, base_pkl, case_dir, case):
     check_case(capsys, base, case_dir, case)
+
+
+def test_clip_on_cuda_without_a_gpu_is_refused_before_any_write(capsys, base, case_dir):
+    """``clip:FOLDER,device=cuda`` on a machine without CUDA: refused before the first write (the network
+    is loaded before the map folder is made), one line, nothing left."""
+    torch = pytest.importorskip("torch")
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device")
+    from clip_helpers import write_tiny_clip
+
+    w = write_tiny_clip(case_dir / "w")
+    check_case(capsys, base, case_dir, C("vocab", "clip-cuda-without-gpu", lambda b, t: [
+        "map", b / "seq", t / "out", "--segmenter", f"clip:{w},device=cuda", *Q], "device=cuda"))
 
 
 def test_case_count_is_stated():

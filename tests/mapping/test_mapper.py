@@ -424,3 +424,115 @@ def test_a_semantic_map_of_an_older_format_is_refused_in_one_line(mapped, tmp_pa
     (old / "config.json").write_text(json.dumps(d))
     with pytest.raises(PanovoccError, match="format 3.*map the sequence again"):
         Mapper.load(old)
+
+
+def test_save_never_overwrites_a_config_it_cannot_prove_equal(mapped, tmp_path):
+    """Mapper.save over a folder whose config.json is another map's, or unreadable, refuses in one line and
+    writes nothing; a map made before local origins (no origin in config.json) saves over itself keeping its
+    config.json, so map --resume and revise can still read it."""
+    import json
+    import shutil
+
+    from cli_helpers import snapshot
+
+    out, cfg, frames = mapped
+    other = dataclasses.replace(cfg.mapper_config(), vocab=[])  # a geometry-only mapper
+    m = Mapper(other)
+    m.integrate(dataclasses.replace(frames(0), logits=None))
+    for name, text in (("theirs", (out / "config.json").read_text()), ("broken", "{not json")):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "config.json").write_text(text)
+        before = snapshot(d)
+        with pytest.raises(PanovoccError, match="config.json") as e:
+            m.save(d)
+        assert "\n" not in str(e.value)
+        assert snapshot(d) == before
+    legacy = tmp_path / "legacy"
+    shutil.copytree(out, legacy)
+    d = json.loads((legacy / "config.json").read_text())
+    d.pop("origin")
+    (legacy / "config.json").write_text(json.dumps(d, indent=2) + "\n")
+    text = (legacy / "config.json").read_text()
+    back = Mapper.load(legacy)
+    assert back.config.origin == [0.0, 0.0, 0.0]
+    back.save(legacy)
+    back.close()
+    assert (legacy / "config.json").read_text() == text
+    assert load_config(legacy).seq == cfg.seq
+
+
+def test_revise_from_a_second_thread_while_integrate_runs_is_serialised_and_exact(mapped):
+    """A SLAM thread revises frames while the main thread integrates: the mapper's lock lets one mutation
+    run at a time (never interleaved), and the memory equals the sequential computation bit for bit."""
+    import threading
+    import time
+
+    _, cfg, frames = mapped
+    moved = {0: _moved(frames(0).T_world_cam, 5), 1: _moved(frames(1).T_world_cam, 6)}
+    m = Mapper(cfg.mapper_config())
+    m.integrate(frames(0))
+    m.integrate(frames(1))
+    events, errors, inside = [], [], threading.Event()
+    real_keep, real_revise = m._rpu.keep, m._rpu.revise
+
+    def keep(*a, **k):
+        events.append("keep+")
+        inside.set()
+        time.sleep(0.05)  # a long update: the other thread has every chance to run meanwhile
+        real_keep(*a, **k)
+        events.append("keep-")
+
+    def revise(*a, **k):
+        events.append("revise+")
+        real_revise(*a, **k)
+        events.append("revise-")
+
+    m._rpu.keep, m._rpu.revise = keep, revise
+
+    def slam():
+        try:
+            inside.wait(10)
+            for j, T in moved.items():
+                m.revise(j, T)
+        except BaseException as e:  # noqa: BLE001 - reported by the assertion below
+            errors.append(e)
+
+    t = threading.Thread(target=slam)
+    t.start()
+    for i in range(2, N):
+        m.integrate(frames(i))
+    t.join(30)
+    assert not t.is_alive() and errors == []
+    pairs = [events[k:k + 2] for k in range(0, len(events), 2)]
+    assert all(a[:-1] == b[:-1] and a[-1] == "+" and b[-1] == "-" for a, b in pairs), events
+    assert sorted(events) == sorted(["keep+", "keep-"] * (N - 2) + ["revise+", "revise-"] * 2)
+    seq = Mapper(cfg.mapper_config())
+    for i in range(N):
+        f = frames(i)
+        seq.integrate(dataclasses.replace(f, T_world_cam=moved.get(i, f.T_world_cam)))
+    _assert_same_memory(m, seq)
+    np.testing.assert_array_equal(m.prediction().labels, seq.prediction().labels)
+
+
+def test_poses_that_are_not_rigid_are_refused_naming_the_frame(mapped):
+    """A scaled pose, a reflection or a matrix whose last row is not [0 0 0 1] (e.g. a transposed one) is
+    refused by integrate and revise in one line naming the frame; the map is unchanged."""
+    _, cfg, frames = mapped
+    m = Mapper(cfg.mapper_config())
+    m.integrate(frames(0))
+    before = _arrays(m)
+    f = frames(1)
+    scaled, flipped, transposed = f.T_world_cam.copy(), f.T_world_cam.copy(), f.T_world_cam.T.copy()
+    scaled[:3, :3] *= 1.01
+    flipped[:, 0] *= -1
+    for T in (scaled, flipped, transposed):
+        with pytest.raises(PanovoccError, match=r"^frame 1: T_world_cam: (not rigid|last row)") as e:
+            m.integrate(dataclasses.replace(f, T_world_cam=T))
+        assert "\n" not in str(e.value)
+        with pytest.raises(PanovoccError, match=r"^frame 0: T_world_cam: (not rigid|last row)"):
+            m.revise(0, T)
+    assert m.frame_ids == [0]
+    after = _arrays(m)
+    assert all(np.array_equal(before[k], after[k]) for k in before)
+    assert m.integrate(dataclasses.replace(f, T_world_cam=f.T_world_cam + 1e-9)) == 1  # within the tolerance

@@ -26,7 +26,8 @@ def room_seq(tmp_path_factory):
 
 def _cfg(seq, out, **kw):
     kw.setdefault("geometry", GeometryParams())
-    return MapConfig(seq=str(seq), out=str(out), checkpoint_every=2, **kw)
+    kw.setdefault("checkpoint_every", 2)
+    return MapConfig(seq=str(seq), out=str(out), **kw)
 
 
 def _bytes(out):
@@ -438,3 +439,56 @@ def test_revise_matches_tum_poses_by_timestamp_as_map_does(room_seq, tmp_path):
     with pytest.raises(PanovoccError, match="1 of 5 frames \\(4\\)"):  # a TUM file missing a pose: the frame is named
         write_tum(tmp_path / "few.tum", true[:-1])
         run_revise(out, tmp_path / "few.tum", progress=False)
+
+
+def test_a_slam_run_failing_mid_run_does_not_call_itself_resumable(room_seq, tmp_path):
+    """--poses slam runs refuse --resume: a failure found mid-run says to start over, never 'resumable'."""
+    from panovocc_cli.mapping.config import POSES_SLAM
+
+    def pose_source(seq):
+        def source(i, frame):
+            if i == 2:
+                raise PanovoccError("frame 2: the tracker's input is broken")
+            return seq.poses[i], []
+        return source
+
+    out = tmp_path / "m"
+    with pytest.raises(PanovoccError, match="frame 2: the tracker's input is broken") as e:
+        run_map(_cfg(room_seq, out, poses=POSES_SLAM), progress=False, pose_source=pose_source)
+    msg = str(e.value)
+    assert "\n" not in msg and "resum" not in msg.replace("cannot be resumed", "") and "--overwrite" in msg
+    with pytest.raises(PanovoccError, match="cannot be resumed"):
+        run_map(resume_out=out, progress=False)
+
+
+def _commits(out) -> list[tuple[int, int]]:
+    """The (shard, end) of each entry of OUT/deltas/commits.pvj."""
+    import struct
+
+    data = (out / "deltas" / "commits.pvj").read_bytes()
+    return [struct.unpack("<4sqqI", data[i:i + 24])[1:3] for i in range(0, len(data), 24)]
+
+
+def test_resume_over_a_truncated_delta_log_rolls_back_and_is_exact(room_seq, tmp_path):
+    """A delta log cut short below its last commit(s) (a truncated shard) is rolled back by --resume to the
+    last commit the log still reaches, as a killed run's tail is, and the frames after it are mapped again:
+    the result is a clean run's bytes. revise still refuses such a folder (it would drop frames)."""
+    full = tmp_path / "full"
+    run_map(_cfg(room_seq, full), progress=False)
+    part = tmp_path / "part"
+    run_map(_cfg(room_seq, part, checkpoint_every=1), progress=False, stop_after=4)  # commits at 1 to 4 frames
+    commits = _commits(part)
+    assert len(commits) == 4 and len({s for s, _ in commits}) == 1
+    with open(part / "deltas" / "shard-000000.pvd", "r+b") as f:
+        f.truncate(commits[3][1] - 10)  # frame 3's record torn: the log reaches the commit after frame 2 only
+    run_map(resume_out=part, progress=False)
+    assert _bytes(part) == _bytes(full)
+    done = tmp_path / "done"  # a finished map, its only delta file cut in half
+    run_map(_cfg(room_seq, done), progress=False)
+    shard = done / "deltas" / "shard-000000.pvd"
+    with open(shard, "r+b") as f:
+        f.truncate(shard.stat().st_size // 2)
+    with pytest.raises(PanovoccError, match="delta log ends before"):
+        run_revise(done, room_seq / "poses.txt", progress=False)
+    run_map(resume_out=done, progress=False)
+    assert _bytes(done) == _bytes(full)
