@@ -19,6 +19,7 @@ Labels (:func:`label_occupied`): the occupied set comes from the geometry alone;
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -87,24 +88,28 @@ def _slices(n: int):
 
 
 def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
-    """:func:`memory_to_grid`'s grid and occupied keys, and the occupied mask and score g (n,) of every
-    voxel: per-voxel work in slices of :data:`CHUNK` voxels, so the export's temporaries stay a few
-    megabytes whatever the map's size (the masks and g are the same as one :func:`classify` call's)."""
+    """:func:`memory_to_grid`'s grid and occupied keys, and the positions (m,) of the occupied voxels in
+    ``keys`` with their score g (m,): per-voxel work in slices of :data:`CHUNK` voxels, so the export's
+    temporaries stay a few megabytes whatever the map's size (the masks and g are the same as one
+    :func:`classify` call's)."""
     n = len(keys)
     occ = np.zeros(n, np.bool_)
     free = np.zeros(n, np.bool_)
-    g = np.zeros(n, np.float64)
+    g_occ = []
     geo = ("A", "N", "F", "O")
     for sl in _slices(n):  # a memory's channels are read a slice at a time (never all of them at once)
         c = channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
             {k: channels[k][sl] for k in geo}
-        occ[sl], free[sl], g[sl] = classify(c["A"], c["N"], c["F"], c["O"], p)
+        occ[sl], free[sl], g = classify(c["A"], c["N"], c["F"], c["O"], p)
+        g_occ.append(g[occ[sl]])
+    g_occ = np.concatenate(g_occ) if g_occ else np.zeros(0, np.float64)
+    pos = np.flatnonzero(occ)
     kept = keys[occ | free]
     state = np.where(occ[occ | free], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
     if len(kept) == 0:
         labels = np.full((1, 1, 1), UNKNOWN, np.uint8)
         return (Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)),
-                keys[:0], occ, g)
+                keys[:0], pos, g_occ)
     i0 = np.full(3, np.iinfo(np.int64).max, np.int64)
     i1 = np.full(3, np.iinfo(np.int64).min, np.int64)
     for sl in _slices(len(kept)):
@@ -115,7 +120,7 @@ def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=
         local = unpack_keys(kept[sl]) - i0
         labels[local[:, 0], local[:, 1], local[:, 2]] = state[sl]
     grid = Grid(labels, index_to_center(i0, voxel_size), voxel_size, list(class_names))
-    return grid, keys[occ], occ, g
+    return grid, keys[pos], pos, g_occ
 
 
 def height_colors(z: np.ndarray) -> np.ndarray:
@@ -139,6 +144,39 @@ def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean
     return centres, height_colors(centres[:, 2])
 
 
+class OccupiedChannels(Mapping):
+    """A memory's channels at its occupied voxels (name -> (m, width) int64, rows in ``occupied_keys``
+    order), each read from the memory when first asked for, or a block of rows at a time (:meth:`rows`):
+    a large map's export never holds every channel of every occupied voxel at once."""
+
+    def __init__(self, channels, pos: np.ndarray):
+        self._channels, self._pos, self._cache = channels, pos, {}
+
+    def rows(self, sl: slice, names) -> dict:
+        """Channels ``names`` at the occupied voxels ``sl`` (a slice of the rows)."""
+        p = self._pos[sl]
+        if hasattr(self._channels, "at"):
+            return self._channels.at(p, names)
+        return {k: self._channels[k][p] for k in names}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._cache:
+            if name not in self._channels:
+                raise KeyError(name)
+            # a copy: the memory reads a group of channels into one array and hands out column views
+            self._cache[name] = np.ascontiguousarray(self.rows(slice(None), [name])[name])
+        return self._cache[name]
+
+    def __contains__(self, name) -> bool:  # without reading the channel
+        return name in self._channels
+
+    def __iter__(self):
+        return iter(self._channels)
+
+    def __len__(self) -> int:
+        return len(self._channels)
+
+
 @dataclass
 class MapExport:
     """What the memory says at one moment: the grid and, for the point cloud, its occupied voxels.
@@ -147,7 +185,8 @@ class MapExport:
         ``class_names = ["empty"] + vocabulary`` (``["empty"]`` for a geometry-only map)
     occupied_keys : (m,) int64 sorted keys of the occupied voxels, relative to ``origin_index``
     labels : (m,) int64 vocabulary index per occupied voxel (-1 = no class), or None without semantics
-    channels : dict name -> (m, width) int64, the memory channels at the occupied voxels
+    channels : mapping name -> (m, width) int64, the memory channels at the occupied voxels
+        (:class:`OccupiedChannels`: each read when first asked for)
     origin_index : (3,) int64, the map's local origin on the world lattice (the grid is in world placement)
     """
 
@@ -176,9 +215,9 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     Parameters
     ----------
     occupied_keys : (n,) int64 voxel keys (lattice.pack_keys)
-    channels : dict of the occupied voxels' stored channels, rows aligned with ``occupied_keys``:
-        E (n, C), S (n, 1), normal_sum (n, 3), rgb_sum (n, 3), count (n, 1) int64 (the integer channels of
-        :mod:`.contributors`)
+    channels : the occupied voxels' stored channels, rows aligned with ``occupied_keys`` (a dict, or
+        :class:`OccupiedChannels`, read a block of rows at a time): E (n, C), S (n, 1), normal_sum (n, 3),
+        rgb_sum (n, 3), count (n, 1) int64 (the integer channels of :mod:`.contributors`)
     g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
     params : object with ``use_gsc`` and ``gsc`` (``MapperConfig`` or ``SemanticParams``)
 
@@ -190,13 +229,16 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     if n == 0:
         return np.zeros(0, np.int64)
     S = channels["S"][:, 0] / S_SCALE
-    parts = []
+    names = ("E", "normal_sum", "rgb_sum", "count")
+    p = normals = colors = None
     for r in range(0, n, UNARY_CHUNK):  # row by row, so a block at a time gives the same values
         b = slice(r, r + UNARY_CHUNK)
-        parts.append(unaries(channels["E"][b] / S_SCALE, S[b], channels["normal_sum"][b] / NORMAL_STEPS,
-                             channels["rgb_sum"][b], channels["count"][b, 0]))
-    p, normals, colors = (np.concatenate(x) for x in zip(*parts))
-    del parts
+        c = channels.rows(b, names) if hasattr(channels, "rows") else {k: channels[k][b] for k in names}
+        u = unaries(c["E"] / S_SCALE, S[b], c["normal_sum"] / NORMAL_STEPS, c["rgb_sum"], c["count"][:, 0])
+        if p is None:
+            p, normals, colors = (np.empty((n,) + x.shape[1:], x.dtype) for x in u)
+        p[b], normals[b], colors[b] = u
+        del c, u
     return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
                        use_gsc=params.use_gsc, params=params.gsc)
 
@@ -239,14 +281,12 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     origin_index : (3,) int64, the lattice index the keys are relative to (the map's local origin); the
         grid is placed in the world by it
     """
-    grid, occ_keys, occ, g = _grid_of(keys, channels, voxel_size, occupancy)
-    pos = np.flatnonzero(occ)
-    # a memory's channels are read at the occupied voxels only (not copied for every voxel first)
-    sub = channels.at(pos) if hasattr(channels, "at") else {k: v[pos] for k, v in channels.items()}
+    grid, occ_keys, pos, g = _grid_of(keys, channels, voxel_size, occupancy)
+    # a memory's channels are read at the occupied voxels only, and each when it is needed
+    sub = OccupiedChannels(channels, pos)
     labels = None
     if len(vocab) and "E" in channels:
-        labels = label_occupied(occ_keys, {k: sub[k] for k in ("E", "S", "rgb_sum", "normal_sum", "count")},
-                                g[pos], semantic)
+        labels = label_occupied(occ_keys, sub, g, semantic)
         grid = apply_labels(grid, occ_keys, labels, vocab)
     oi = np.asarray(origin_index, np.int64).reshape(3)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world

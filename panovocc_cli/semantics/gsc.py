@@ -64,6 +64,11 @@ def _check_index(occupied_idx) -> np.ndarray:
     return idx.astype(np.int64, copy=False)
 
 
+def _increasing(keys: np.ndarray) -> bool:
+    """True when ``keys`` are strictly increasing (sorted, no repeats): their stable sort is the identity."""
+    return bool(np.all(keys[1:] > keys[:-1]))
+
+
 def neighbour_edges(occupied_idx: np.ndarray):
     """The 6-neighbour edges between occupied voxels, each unordered pair once.
 
@@ -73,17 +78,18 @@ def neighbour_edges(occupied_idx: np.ndarray):
 
     Returns
     -------
-    i, j : (m,) int64, voxel positions with ``occupied_idx[j] == occupied_idx[i] + e_axis``
-    axis : (m,) int64 in {0, 1, 2}
+    i, j : (m,) int32 (int64 from 2^31 voxels), voxel positions with ``occupied_idx[j] == occupied_idx[i] + e_axis``
+    axis : (m,) int8 in {0, 1, 2}
     """
     idx = _check_index(occupied_idx)
     n = idx.shape[0]
     keys = pack_keys(idx)
-    order = np.argsort(keys, kind="stable")
-    sk = keys[order]
+    order = None if _increasing(keys) else np.argsort(keys, kind="stable")  # None: in key order already
+    sk = keys if order is None else keys[order]
     if n > 1 and np.any(sk[1:] == sk[:-1]):
         raise PanovoccError("occupied voxel indices repeat (each voxel must appear once)")
-    sidx = idx[order]
+    sidx = idx if order is None else idx[order]
+    it = np.int32 if n < 2 ** 31 else np.int64  # positions: half the bytes where they fit
     ii, jj, aa = [], [], []
     for a in range(3):
         step = np.zeros(3, dtype=np.int64)
@@ -94,9 +100,9 @@ def neighbour_edges(occupied_idx: np.ndarray):
         pos = np.minimum(np.searchsorted(sk, nk), max(n - 1, 0))
         found = sk[pos] == nk if n else np.zeros(0, dtype=bool)
         src = np.flatnonzero(found)
-        ii.append(order[src])
-        jj.append(order[pos[src]])
-        aa.append(np.full(src.size, a, dtype=np.int64))
+        ii.append((src if order is None else order[src]).astype(it, copy=False))
+        jj.append((pos[src] if order is None else order[pos[src]]).astype(it, copy=False))
+        aa.append(np.full(src.size, a, dtype=np.int8))
     return np.concatenate(ii), np.concatenate(jj), np.concatenate(aa)
 
 
@@ -113,7 +119,7 @@ def edge_affinity(i: np.ndarray, j: np.ndarray, axis: np.ndarray, g: np.ndarray,
 
     Parameters
     ----------
-    i, j, axis : (m,) int64 edges from :func:`neighbour_edges`
+    i, j, axis : (m,) integer edges from :func:`neighbour_edges`
     g : (n,) float, signed PSVF scores
     normals : (n, 3) float, mean normals (any length; zero = unknown), world frame
     colors : (n, 3) float, mean colours 0..255 (NaN = unknown)
@@ -233,10 +239,14 @@ def gsc_diffuse(occupied_idx: np.ndarray, p: np.ndarray, S: np.ndarray, g: np.nd
         raise PanovoccError(f"GSC inputs disagree with {n} voxels: p {p.shape}, S {S.shape}, g {np.shape(g)}, "
                             f"normals {np.shape(normals)}, colors {np.shape(colors)}")
     has = S > 0
-    p = np.where(has[:, None], p, np.float32(0.0)).astype(np.float32, copy=False)
+    if n and not has.all() and p[~has].view(np.uint32).any():  # rows without evidence: exact zeros (no copy
+        p = np.where(has[:, None], p, np.float32(0.0)).astype(np.float32, copy=False)  # when they are already)
     if n == 0 or params.iterations <= 0:
         return p
-    # Work in lattice-key order: neighbours then sit close in memory (fast sparse products).
+    # Work in lattice-key order: neighbours then sit close in memory (fast sparse products). An export's
+    # occupied voxels come in that order: no sorted copies of the inputs then.
+    if _increasing(pack_keys(idx)):
+        return _diffuse_sorted(idx, p, S, np.asarray(g), np.asarray(normals), np.asarray(colors), params)
     order = np.argsort(pack_keys(idx), kind="stable")
     q_sorted = _diffuse_sorted(idx[order], p[order], S[order], np.asarray(g)[order], np.asarray(normals)[order],
                                np.asarray(colors)[order], params)

@@ -160,3 +160,25 @@ def test_a_slab_of_200k_voxels_consolidates():
     out = consolidate(idx, p, S, np.zeros(n, np.float32), np.tile(np.float32([0, 0, 1]), (n, 1)),
                       rng.uniform(0, 255, (n, 3)).astype(np.float32))
     assert out.shape == (n,) and (out >= 0).all() and (out < 12).all()
+
+
+def test_voxels_in_key_order_skip_the_sorted_copies_with_the_same_result():
+    """gsc_diffuse and neighbour_edges work in lattice-key order; voxels given in that order (an export's)
+    are used as they are instead of copied into it: the same distributions, bit for bit, as the same voxels
+    given shuffled, and the edges' positions in 32 bits."""
+    from panovocc_cli.geometry.lattice import pack_keys
+
+    rng = np.random.default_rng(3)
+    idx = np.unique(rng.integers(-6, 7, (900, 3)), axis=0)
+    idx = idx[np.argsort(pack_keys(idx), kind="stable")]
+    n, c = len(idx), 5
+    p = rng.dirichlet(np.ones(c), n).astype(np.float32)
+    S = np.where(rng.random(n) < 0.3, 0.0, rng.random(n) * 4).astype(np.float32)
+    p[S == 0] = 0.0
+    g, normals, colors = rng.random(n), rng.normal(size=(n, 3)), rng.random((n, 3)) * 255
+    q = gsc_diffuse(idx, p, S, g, normals, colors)
+    perm = rng.permutation(n)
+    q_perm = gsc_diffuse(idx[perm], p[perm], S[perm], g[perm], normals[perm], colors[perm])
+    assert np.array_equal(q[perm].view(np.uint32), q_perm.view(np.uint32))
+    i, j, a = neighbour_edges(idx)
+    assert i.dtype == j.dtype == np.int32 and a.dtype == np.int8 and len(i) > n // 2
