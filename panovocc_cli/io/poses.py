@@ -93,11 +93,59 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
                                     "one pose per timestamp", path)
             line_of[vals[0]] = n
         stamps.append(vals[0] if width == 8 else float(len(stamps)))
-        poses.append(check_rigid(T, what=f"{path}: line {n}"))
-        if np.abs(T[:3, 3]).max() > MAX_POSITION_M:
-            raise PanovoccError(f"line {n}: camera position {T[:3, 3].tolist()} m is beyond {MAX_POSITION_M:g} m "
-                                "of the origin (expected metres)", path)
+        poses.append(_checked_pose(T, path, f"line {n}"))
     return np.array(stamps, np.float64), np.stack(poses), ("tum" if width == 8 else "nice-slam")
+
+
+def _checked_pose(T: np.ndarray, path: Path, where: str) -> np.ndarray:
+    """``T`` (4, 4) checked rigid, its camera within :data:`~panovocc_cli.config.MAX_POSITION_M` metres of the
+    origin; one line naming the file and ``where`` (``line 3``) otherwise."""
+    T = check_rigid(T, what=f"{path}: {where}")
+    if np.abs(T[:3, 3]).max() > MAX_POSITION_M:
+        raise PanovoccError(f"{where}: camera position {T[:3, 3].tolist()} m is beyond {MAX_POSITION_M:g} m "
+                            "of the origin (expected metres)", path)
+    return T
+
+
+def read_first_pose(path: str | Path, stamp: float = 0.0, max_diff: float | None = None) -> np.ndarray:
+    """The pose of a sequence's first frame from a file (``map --poses slam --first-pose FILE``).
+
+    Accepted forms: a 4x4 matrix (4 lines of 4 numbers, T_world_cam row-major); a NICE-SLAM file (its first
+    line is frame 0; further lines are ignored, so a sequence's ``poses.txt`` will do); a TUM file, whose pose
+    with the timestamp nearest ``stamp`` (frame 0's, by default the frame index 0) within ``max_diff``
+    (default :data:`~panovocc_cli.config.MATCH_MAX_DIFF`) is used, as :func:`frame_poses` matches frames.
+
+    Returns
+    -------
+    T_world_cam : (4, 4) float64, checked rigid, the camera within ``MAX_POSITION_M`` metres of the origin
+
+    Raises
+    ------
+    PanovoccError
+        One line naming the file: missing, empty, not one of the forms, a pose that is not rigid, no TUM
+        pose near ``stamp``.
+    """
+    path = Path(path)
+    rows = _rows(path)
+    width = len(rows[0][1])
+    if width == 4:
+        if len(rows) != 4 or any(len(parts) != 4 for _, parts in rows):
+            raise PanovoccError(f"a 4x4 matrix: {len(rows)} lines of {[len(p) for _, p in rows]} numbers; expected "
+                                "4 lines of 4 numbers (T_world_cam row-major)", path)
+        T = np.stack([_floats(path, n, parts) for n, parts in rows])
+        return _checked_pose(T, path, "4x4 matrix")
+    if width not in (16, 8):
+        raise PanovoccError(f"line {rows[0][0]}: {width} numbers; expected a 4x4 matrix (4 lines of 4 numbers), "
+                            "16 numbers a line (NICE-SLAM form) or 8 (TUM form: t tx ty tz qx qy qz qw)", path)
+    t, T, form = read_trajectory(path)
+    if form == "nice-slam":
+        return T[0]
+    max_diff = MATCH_MAX_DIFF if max_diff is None else max_diff
+    ia, ib = match_timestamps(np.array([stamp], np.float64), t, max_diff)
+    if len(ib) == 0:
+        raise PanovoccError(f"no pose within {max_diff} of the first frame's timestamp {stamp:g} (TUM timestamps "
+                            f"{t.min():.6g} .. {t.max():.6g}; frame i has timestamp i)", path)
+    return T[int(ib[0])]
 
 
 def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | None = None) -> np.ndarray:

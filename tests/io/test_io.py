@@ -260,3 +260,41 @@ def test_a_greyscale_image_where_colour_is_expected_is_refused(tmp_path, capsys)
     code, _, err = run_cli(capsys, ["map", seq, tmp_path / "m", "--segmenter", "none", "--quiet"])
     assert code == 2 and "000001.png" in err and "greyscale" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "m").exists()
+
+
+def test_read_first_pose_forms(tmp_path):
+    """``--first-pose FILE``: a 4x4 matrix, a NICE-SLAM file (its first line is frame 0), a TUM file (the pose
+    whose timestamp matches frame 0), all through the one pose reader."""
+    from panovocc_cli.io.poses import read_first_pose
+
+    T = np.stack([look_at([i + 100.0, -20.0, 1.5], [1.0, 0.2 * i, 0.05]) for i in range(3)])
+    (tmp_path / "m.txt").write_text("# T_world_cam of frame 0\n" + "".join(
+        " ".join(repr(float(x)) for x in row) + "\n" for row in T[0]))
+    assert np.array_equal(read_first_pose(tmp_path / "m.txt"), T[0])
+    write_poses(tmp_path / "one.txt", T[:1])
+    assert np.array_equal(read_first_pose(tmp_path / "one.txt"), T[0])
+    write_poses(tmp_path / "all.txt", T)
+    assert np.array_equal(read_first_pose(tmp_path / "all.txt"), T[0])
+    write_tum(tmp_path / "t.tum", T[::-1], timestamps=np.array([2.0, 1.0, 0.0]))  # any order: matched by stamp
+    assert np.allclose(read_first_pose(tmp_path / "t.tum"), T[0], atol=1e-9)
+
+
+@pytest.mark.parametrize("content,match", [
+    ("", "empty"),
+    ("# only a comment\n", "empty"),
+    ("1 0 0 0\n0 1 0 0\n0 0 1 0\n", "4x4 matrix: 3 lines"),
+    ("1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n", "not rigid"),
+    ("1 0 0\n", "3 numbers"),
+    ("2 0 0 0 0 2 0 0 0 0 2 0 0 0 0 1\n", "not rigid"),  # a scale is not a rigid pose
+    ("5 0 0 0 0 0 0 1\n", "no pose within"),  # TUM, its one stamp far from frame 0's
+])
+def test_read_first_pose_refuses(tmp_path, content, match):
+    from panovocc_cli.io.poses import read_first_pose
+
+    p = tmp_path / "first.txt"
+    p.write_text(content)
+    with pytest.raises(PanovoccError, match=match) as e:
+        read_first_pose(p)
+    assert str(p) in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(PanovoccError, match="not found"):
+        read_first_pose(tmp_path / "missing.txt")
