@@ -12,7 +12,7 @@ from ..benchmark.bench import BenchConfig
 from ..mapping.params import GeometryParams, OccupancyParams
 from ..mapping.ablation import AblationParams
 from ..evaluation.run import SegevalConfig
-from ..mapping.config import POSES_SLAM, MapConfig, ReviseConfig, SemanticParams
+from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, MapConfig, ReviseConfig, SemanticParams
 from ._app import app
 from .options import OptionValues, build_config, config_command
 
@@ -67,7 +67,8 @@ def _live_log(rrd, connect: bool, url, every: int, overwrite: bool, o: OptionVal
     from ..viz.live import LiveLog
 
     if rrd is not None:
-        inputs = [o[k] for k in ("seq", "poses", "poses_reference") if o.get(k) not in (None, POSES_SLAM)]
+        inputs = [o[k] for k in ("seq", "poses", "poses_reference", "first_pose")
+                  if o.get(k) not in (None, POSES_SLAM, FIRST_POSE_REFERENCE)]
         check_outputs([(o.get("out"), "map", True), (o.get("frame_times"), "frame times", False),
                        (rrd, "recording", False)], overwrite, inputs=inputs)
     return LiveLog(rrd=rrd, connect=(url or "") if connect else None, every=every)

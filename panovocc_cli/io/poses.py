@@ -199,13 +199,18 @@ def write_poses(path: str | Path, T_world_cam: np.ndarray) -> None:
 
 def write_tum(path: str | Path, T_world_cam: np.ndarray, timestamps=None) -> None:
     """Atomically write poses (N, 4, 4) in TUM form (quaternion x y z w)."""
+    write_text(path, format_tum(T_world_cam, timestamps))
+
+
+def format_tum(T_world_cam: np.ndarray, timestamps=None) -> str:
+    """TUM text: one line ``t tx ty tz qx qy qz qw`` a pose (N, 4, 4); timestamps default to 0 .. N-1."""
     T_world_cam = np.asarray(T_world_cam)
     ts = np.arange(len(T_world_cam), dtype=np.float64) if timestamps is None else np.asarray(timestamps)
     lines = []
     for t, T in zip(ts, T_world_cam):
         q = rot_to_quat(T[:3, :3])
         lines.append(" ".join(repr(float(x)) for x in [t, *T[:3, 3], *q]) + "\n")
-    write_text(path, "".join(lines))
+    return "".join(lines)
 
 
 def match_timestamps(stamps_a, stamps_b, max_diff: float = MATCH_MAX_DIFF) -> tuple[np.ndarray, np.ndarray]:

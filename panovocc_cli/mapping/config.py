@@ -34,6 +34,7 @@ FORMAT_VERSION = 4  # of a map folder; 2: semantic section (a version-1 config i
 SEMANTIC_FORMAT = 4  # the first format whose semantic channels this panovocc reads
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
+FIRST_POSE_REFERENCE = "reference"  # --first-pose reference: the reference trajectory's pose of the first frame
 PLY_COLORS = ("class", "rgb", "height")
 
 
@@ -136,7 +137,13 @@ class MapConfig:
                               help="Align the --poses file to a reference trajectory first (Umeyama): none | se3 | "
                                    "sim3.")
     poses_reference: str | None = option(None, cli_type=Path, parse=str,
-                                         help="Reference trajectory of --poses-align; default SEQ/poses.txt.")
+                                         help="Reference trajectory of --poses-align and of --first-pose reference; "
+                                              "default SEQ/poses.txt.")
+    first_pose: str | None = option(None, cli_type=Path, parse=str, metavar="FILE|reference",
+                                    help="With --poses slam: the first frame's pose T_world_cam, which the SLAM world "
+                                         "starts from (a file: a 4x4 matrix, NICE-SLAM or TUM; 'reference': "
+                                         "--poses-reference's pose of that frame). Default: the first frame, "
+                                         "levelled, at the origin.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
     frame_times: str | None = option(None, cli_type=Path, parse=str,
                                      help="Write a CSV of every frame's cost (frame, wall and process CPU "
@@ -174,6 +181,7 @@ class MapConfig:
         try:
             return cls(seq=str(d["seq"]), out=str(d["out"]), poses=d.get("poses"),
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
+                       first_pose=d.get("first_pose"),
                        checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
                        geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),

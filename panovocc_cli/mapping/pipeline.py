@@ -37,11 +37,11 @@ from ..io import mapstore
 from ..io.atomic import check_outputs, clean_temporaries, write_text
 from ..io.grid import write_grid
 from ..io.ply import write_ply_points
-from ..io.poses import frame_poses, write_poses
+from ..io.poses import frame_poses, read_first_pose, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
-from .config import (PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig, MapperConfig, ReviseConfig,
-                     SemanticParams, check_key_reach)
+from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig,
+                     MapperConfig, ReviseConfig, SemanticParams, check_key_reach)
 from .export import point_colors
 from .mapper import Mapper
 from .rpu import has_store
@@ -221,15 +221,15 @@ def run_poses(cfg: MapConfig) -> np.ndarray | None:
 
     ``--poses FILE``: one pose per frame (io/poses.py ``frame_poses``: NICE-SLAM line i = frame i, TUM
     timestamps matched to frame indices), aligned to ``poses_reference`` (default SEQ/poses.txt) by
-    ``poses_align`` (Umeyama se3/sim3). ``--poses slam``: identity placeholders (the front end places the
-    frames; SEQ/poses.txt is never read).
+    ``poses_align`` (Umeyama se3/sim3). ``--poses slam``: placeholders, :func:`slam_first_poses` (the front
+    end places the frames; SEQ/poses.txt is never read unless ``--first-pose reference`` names it).
     """
     meta = Path(cfg.seq) / "meta.json"
     if not meta.is_file():
         return None  # Sequence says what is wrong
     n = read_meta(cfg.seq).frames
     if cfg.poses == POSES_SLAM:
-        return np.tile(np.eye(4), (n, 1, 1))
+        return slam_first_poses(cfg, n)
     if cfg.poses is None and cfg.poses_align == "none":
         return None
     poses = frame_poses(cfg.poses if cfg.poses is not None else Path(cfg.seq) / "poses.txt", n)
@@ -239,6 +239,20 @@ def run_poses(cfg: MapConfig) -> np.ndarray | None:
         ref = frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
         poses = align_trajectory(poses, ref, cfg.poses_align)[0]
     return poses
+
+
+def slam_first_poses(cfg: MapConfig, n: int) -> np.ndarray:
+    """The world of a ``--poses slam`` run: (n, 4, 4) float64, the pose each frame gets should it be the first
+    the front end places (the tracker's ``T_world_first``; also the run's placeholder poses, from which the
+    map's origin is chosen). ``--first-pose FILE``: that file's one pose (:func:`~..io.poses.read_first_pose`)
+    for every frame; ``--first-pose reference``: the reference trajectory's poses (``--poses-reference``,
+    default SEQ/poses.txt, read as ``--poses-align`` reads it); none: identity (the tracker then levels the
+    first frame at the origin, :data:`~..slam.tracker.LEVEL_FIRST`)."""
+    if cfg.first_pose is None:
+        return np.tile(np.eye(4), (n, 1, 1))
+    if cfg.first_pose == FIRST_POSE_REFERENCE:
+        return frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
+    return np.tile(read_first_pose(cfg.first_pose), (n, 1, 1))
 
 
 def _open_sequence(cfg: MapConfig, poses: np.ndarray | None = None) -> Sequence:
@@ -267,7 +281,9 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
                               seq=str(Path(cfg.seq).resolve()), out=str(Path(cfg.out).resolve()),
                               poses=cfg.poses if cfg.poses in (None, POSES_SLAM) else str(Path(cfg.poses).resolve()),
                               poses_reference=None if cfg.poses_reference is None
-                              else str(Path(cfg.poses_reference).resolve()))
+                              else str(Path(cfg.poses_reference).resolve()),
+                              first_pose=cfg.first_pose if cfg.first_pose in (None, FIRST_POSE_REFERENCE)
+                              else str(Path(cfg.first_pose).resolve()))
     MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy, origin=cfg.origin).check()
     return cfg
 
@@ -360,12 +376,14 @@ def _remove_unless_started(out: Path) -> None:
 
 def map_inputs(cfg: MapConfig) -> tuple:
     """The paths a map run reads (no output may be one or lie inside one): the sequence, the pose file and the
-    reference of --poses-align, a precomputed:DIR segmenter's folder (None entries where not used)."""
+    reference of --poses-align, a precomputed:DIR segmenter's folder, a --first-pose FILE (None entries where
+    not used)."""
     from ..semantics.registry import PRECOMPUTED
 
     seg = cfg.semantic.segmenter
     return (cfg.seq, None if cfg.poses == POSES_SLAM else cfg.poses, cfg.poses_reference,
-            seg[len(PRECOMPUTED):] if seg.startswith(PRECOMPUTED) else None)
+            seg[len(PRECOMPUTED):] if seg.startswith(PRECOMPUTED) else None,
+            None if cfg.first_pose == FIRST_POSE_REFERENCE else cfg.first_pose)
 
 
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
@@ -428,9 +446,14 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if (cfg.poses == POSES_SLAM) != (pose_source is not None):
             raise PanovoccError("--poses slam needs a pose source (panovocc map, or slam.run.run_map_slam)"
                                 if pose_source is None else "a pose source is only used with --poses slam")
-        if cfg.poses == POSES_SLAM and (cfg.poses_align != "none" or cfg.poses_reference is not None):
+        if cfg.first_pose is not None and cfg.poses != POSES_SLAM:
+            raise PanovoccError("--first-pose sets the world of --poses slam; a pose file's world is its own (move it "
+                                "into a reference's with --poses-align se3)")
+        if cfg.poses == POSES_SLAM and (cfg.poses_align != "none" or (
+                cfg.poses_reference is not None and cfg.first_pose != FIRST_POSE_REFERENCE)):
             raise PanovoccError("--poses-align / --poses-reference align a pose file; with --poses slam align "
-                                "afterwards (traj eval, or map --poses OUT/poses.txt --poses-align se3)")
+                                "afterwards (traj eval, or map --poses OUT/poses.txt --poses-align se3), or start "
+                                "the SLAM world at the reference's first pose (--first-pose reference)")
         if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
@@ -469,7 +492,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     corrected = 0
     online = pose_source(seq) if pose_source is not None else None
     unplaced: list[int] = []
-    last_T = np.eye(4)
+    last_T = seq.poses[0].copy() if online is not None else np.eye(4)  # SLAM: the world's first pose (placeholder)
     bar = tqdm(desc="map", unit="frame", file=sys.stderr, disable=not progress, initial=start, total=n)
     times = [] if cfg.frame_times else None
     c0 = time.process_time()

@@ -9,11 +9,17 @@ map's own files it writes::
     OUT/poses.txt        the estimated poses, NICE-SLAM form, one line a frame (Mapper.save writes it;
                          a frame the tracker could not place has the last placed frame's pose and an
                          empty observation in the map)
-    OUT/trajectory.tum   the placed frames' poses in TUM form, timestamp = frame index
+    OUT/trajectory.tum   the placed frames' poses in TUM form, timestamp = frame index (a first comment
+                         line says which world)
     OUT/slam.json        the front end's parameters, keyframes, loop closures, lost / relocalised /
-                         unplaced frames and its time per frame
+                         unplaced frames, its time per frame and its world (``world``)
 
-The sequence's own poses (SEQ/poses.txt) are never read.
+**World.** By default the first placed frame, levelled, at the origin (:data:`.tracker.LEVEL_FIRST`). With
+``--first-pose FILE|reference`` (``MapConfig.first_pose``) the first placed frame gets that pose as it is (no
+levelling on top: the pose already says where the camera looks and which way is up) and every frame follows,
+``T_world_cam(i) = T_first · T_slam(k)⁻¹ · T_slam(i)`` (k the first placed frame): the map is in the file's
+or the reference's world. The sequence's own poses (SEQ/poses.txt) are never read, except as the default
+reference of ``--first-pose reference``.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mapping.config import POSES_SLAM, MapConfig
+from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, MapConfig
 from .tracker import SlamParams, Tracker
 
 SLAM_JSON = "slam.json"
@@ -33,10 +39,15 @@ TRAJECTORY_TUM = "trajectory.tum"
 
 class SlamPoses:
     """A ``run_map`` pose source: ``SlamPoses(params)(seq)`` returns itself bound to a tracker for ``seq``'s
-    size; calling it with ``(i, frame)`` places frame ``i`` and returns ``(T or None, revisions)``."""
+    size; calling it with ``(i, frame)`` places frame ``i`` and returns ``(T or None, revisions)``.
 
-    def __init__(self, params: SlamParams | None = None):
+    first_pose : the run's ``--first-pose`` (None: the levelled first frame). When set, the tracker's world is
+        ``seq.poses``, the placeholders :func:`~..mapping.pipeline.slam_first_poses` gave the sequence.
+    """
+
+    def __init__(self, params: SlamParams | None = None, first_pose: str | None = None):
         self.params = params or SlamParams()
+        self.first_pose = first_pose
         self.tracker: Tracker | None = None
         self.steps: list = []
         self.revisions = 0  # frame revisions sent to the map
@@ -44,7 +55,8 @@ class SlamPoses:
 
     def __call__(self, seq_or_index, frame=None):
         if frame is None:  # bind to a sequence
-            self.tracker = Tracker(seq_or_index.meta.width, seq_or_index.meta.height, self.params)
+            self.tracker = Tracker(seq_or_index.meta.width, seq_or_index.meta.height, self.params,
+                                   T_world_first=None if self.first_pose is None else seq_or_index.poses)
             return self
         step = self.tracker.track(int(seq_or_index), frame.depth)
         self.steps.append((step.frame_id, step.status, step.fitness, step.reason))
@@ -68,45 +80,64 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     from ..mapping.pipeline import run_map
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
-    source = SlamPoses(params)
+    source = SlamPoses(params, first_pose=cfg.first_pose)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)
     summary["slam"] = _write_slam_outputs(
         Path(summary["out"]), source.tracker, frames=summary["frames"], revisions=source.revisions,
         unplaced_frames=summary.get("unplaced_frames", []), track_ms_per_frame=summary.get("track_ms_per_frame"),
-        lost_reasons={str(f): r for f, s, _, r in source.steps if r})
+        lost_reasons={str(f): r for f, s, _, r in source.steps if r}, first_pose=cfg.first_pose)
     return summary
 
 
+def world_of(tracker: Tracker, first_pose: str | None) -> dict:
+    """slam.json's ``world``: ``first_pose`` (the ``--first-pose`` given: a file's path, ``reference``, or None
+    for the levelled first frame), ``first_frame`` (the first placed frame, None when none was) and
+    ``T_world_first`` (its pose, 4 rows of 4; the pose graph keeps it fixed) and a sentence ``frame``."""
+    if first_pose is None:
+        words = "the first placed frame's camera, levelled (world +Z = its up), at the origin"
+    elif first_pose == FIRST_POSE_REFERENCE:
+        words = "the reference trajectory's (--first-pose reference): the first placed frame at its reference pose"
+    else:
+        words = f"the first placed frame at the pose in {first_pose} (--first-pose)"
+    first = tracker.keyframes[0].frame_id if tracker.keyframes else None
+    T = tracker.T_world_first if tracker.T_world_first.ndim == 2 or first is None else tracker.T_world_first[first]
+    return {"first_pose": first_pose, "first_frame": first, "T_world_first": None if first is None else T.tolist(),
+            "frame": words}
+
+
 def _write_slam_outputs(out: Path, tracker: Tracker, frames: int, revisions: int, unplaced_frames: list,
-                        track_ms_per_frame, lost_reasons: dict) -> dict:
-    """Write ``out/trajectory.tum`` (the placed frames' committed poses, timestamp = frame index; empty when
-    none was placed) and ``out/slam.json`` (the tracker's summary and the run's figures); return slam.json's
-    content."""
+                        track_ms_per_frame, lost_reasons: dict, first_pose: str | None = None) -> dict:
+    """Write ``out/trajectory.tum`` (a comment line naming the world, then the placed frames' committed poses,
+    timestamp = frame index; only the comment when none was placed) and ``out/slam.json`` (the tracker's
+    summary, the run's figures and :func:`world_of`); return slam.json's content."""
     from ..io.atomic import write_text
-    from ..io.poses import write_tum
+    from ..io.poses import format_tum
 
     committed = tracker.committed()
     ids = sorted(committed)
-    if ids:
-        write_tum(out / TRAJECTORY_TUM, np.stack([committed[i] for i in ids]), timestamps=np.array(ids, np.float64))
-    else:
-        write_text(out / TRAJECTORY_TUM, "")
+    world = world_of(tracker, first_pose)
+    poses = np.stack([committed[i] for i in ids]) if ids else np.zeros((0, 4, 4))
+    write_text(out / TRAJECTORY_TUM, f"# world: {world['frame']}\n"
+               + format_tum(poses, timestamps=np.array(ids, np.float64)))
     info = tracker.summary() | {"frames": frames, "placed": len(ids), "revisions": revisions,
                                 "unplaced_frames": unplaced_frames, "track_ms_per_frame": track_ms_per_frame,
-                                "lost_reasons": lost_reasons}
+                                "lost_reasons": lost_reasons, "world": world}
     write_text(out / SLAM_JSON, json.dumps(info, indent=2) + "\n")
     return info
 
 
-def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None = None) -> dict:
+def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None = None,
+                   first_pose: str | None = None, poses_reference: str | None = None) -> dict:
     """Only the poses: the front end over ``seq``'s depth frames, no map (what a pipeline that maps again
     with aligned poses needs, e.g. the benchmark's SLAM split: it skips the map's integration and revisions).
 
     Writes into the folder ``out`` (created): ``poses.txt`` (NICE-SLAM form, one line a frame; a frame the
-    tracker could not place has the last placed frame's pose, identity before the first), the same file
-    ``map --poses slam`` writes for the same sequence; ``trajectory.tum`` and ``slam.json`` as there
-    (without the map's fields). SEQ/poses.txt is never read.
+    tracker could not place has the last placed frame's pose, the world's first pose before the first), the
+    same file ``map --poses slam [--first-pose ...]`` writes for the same sequence; ``trajectory.tum`` and
+    ``slam.json`` as there (without the map's fields). ``first_pose`` and ``poses_reference`` as for the map
+    (``--first-pose FILE|reference``, ``--poses-reference``); SEQ/poses.txt is read only as the default
+    reference of ``first_pose="reference"``.
 
     Returns
     -------
@@ -116,13 +147,16 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
 
     from ..io.poses import write_poses
     from ..io.sequence import Sequence, read_meta
+    from ..mapping.pipeline import slam_first_poses
 
     n = read_meta(seq).frames
-    sq = Sequence(seq, poses=np.tile(np.eye(4), (n, 1, 1)))
-    tracker = Tracker(sq.meta.width, sq.meta.height, params)
+    first = slam_first_poses(MapConfig(seq=str(seq), out=str(out), poses=POSES_SLAM, first_pose=first_pose,
+                                       poses_reference=poses_reference), n)
+    sq = Sequence(seq, poses=first)
+    tracker = Tracker(sq.meta.width, sq.meta.height, params, T_world_first=None if first_pose is None else first)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    poses, last = np.tile(np.eye(4), (n, 1, 1)), np.eye(4)
+    poses, last = first.copy(), first[0].copy() if n else np.eye(4)
     unplaced, reasons, revisions, t_track = [], {}, 0, 0.0
     for i in range(n):
         depth = sq.depth(i)
@@ -141,4 +175,5 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
             reasons[str(i)] = step.reason
     write_poses(out / "poses.txt", poses)
     return _write_slam_outputs(out, tracker, frames=n, revisions=revisions, unplaced_frames=unplaced,
-                               track_ms_per_frame=1e3 * t_track / max(n, 1), lost_reasons=reasons)
+                               track_ms_per_frame=1e3 * t_track / max(n, 1), lost_reasons=reasons,
+                               first_pose=first_pose)

@@ -1,7 +1,8 @@
 """Panoramic RGB-D tracking with keyframes, loop closure and pose-graph optimisation.
 
 :class:`Tracker` estimates ``T_world_cam`` of each ERP depth frame online (the world frame is the
-first placed frame's camera frame turned +Z up, :data:`LEVEL_FIRST`):
+first placed frame's camera frame turned +Z up, :data:`LEVEL_FIRST`, unless the caller gives the first placed
+frame's pose, ``T_world_first``):
 
 1. **Tracking, frame to keyframe.** The frame's points (every ``stride``-th pixel, ranges within
    ``(min_range_m, max_range_m)``) are downsampled to ``voxel_m`` and registered to the current
@@ -172,7 +173,10 @@ class Tracker:
     ----------
     width, height : ERP size in pixels (W = 2 H)
     params : SlamParams
-    T_world_first : (4, 4) float64, pose given to the first placed frame (default :data:`LEVEL_FIRST`)
+    T_world_first : (4, 4) float64, pose given to the first placed frame (default :data:`LEVEL_FIRST`), or
+        (n, 4, 4) float64, one per frame id: the first placed frame ``k`` gets ``T_world_first[k]`` (a
+        reference trajectory: its world then holds every later frame,
+        ``T_world_cam(i) = T_world_first[k] · T_slam(k)⁻¹ · T_slam(i)``)
     """
 
     def __init__(self, width: int, height: int, params: SlamParams | None = None, T_world_first=None):
@@ -219,7 +223,8 @@ class Tracker:
         if len(cloud) < p.min_points:
             return self._lose(fid, f"few valid depths ({len(cloud)} points after downsampling, need {p.min_points})")
         if not self.keyframes:
-            self.keyframes.append(_Keyframe(fid, cloud, self.T_world_first.copy()))
+            first = self.T_world_first if self.T_world_first.ndim == 2 else self.T_world_first[fid]
+            self.keyframes.append(_Keyframe(fid, cloud, first.copy()))
             return self._place(fid, 0, np.eye(4), KEYFRAME, 1.0, cloud)
         last = self._last[1] if self._last is not None else self.keyframes[self._ref].T_world
         guesses = [last @ self._velocity]  # constant velocity
