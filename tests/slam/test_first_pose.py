@@ -105,10 +105,11 @@ def test_first_pose_file_moves_the_whole_trajectory(short_seq, tmp_path):
     assert (tmp_path / "poses_only" / "poses.txt").read_bytes() == (tmp_path / "file" / "poses.txt").read_bytes()
 
 
-@pytest.mark.parametrize("case", ["missing", "empty", "non-rigid", "without-slam", "reference-of-a-file"])
+@pytest.mark.parametrize("case", ["missing", "empty", "non-rigid", "without-slam", "reference-of-a-file",
+                                  "inside-the-output"])
 def test_first_pose_bad_input_refused_in_one_line(short_seq, tmp_path, capsys, case):
     f = tmp_path / "first.txt"
-    extra, expect = [], "first.txt"
+    extra, expect, out = [], "first.txt", tmp_path / "out"
     if case == "empty":
         f.write_text("\n")
         expect = "empty"
@@ -121,12 +122,14 @@ def test_first_pose_bad_input_refused_in_one_line(short_seq, tmp_path, capsys, c
         write_poses(f, np.eye(4)[None])
         if case == "without-slam":
             extra, expect = ["--first-pose", f], "--first-pose"
-        else:
+        elif case == "reference-of-a-file":
             extra, expect = ["--poses-reference", short_seq / "poses.txt"], "--poses-reference"
-    argv = ["map", short_seq, tmp_path / "out", "--segmenter", "none", "--quiet"]
+        else:  # --overwrite OUT would remove the file the run reads
+            extra, expect, out = ["--overwrite"], "first.txt", tmp_path
+    argv = ["map", short_seq, out, "--segmenter", "none", "--quiet"]
     argv += extra if case == "without-slam" else ["--poses", "slam", "--first-pose", f, *extra]
     code, _, err = run_cli(capsys, argv)
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and "Traceback" not in err and len(lines) == 1 and lines[0].startswith("error:"), err
     assert expect in lines[0], lines[0]
-    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / "out").exists() and sorted(p.name for p in tmp_path.iterdir()) in ([], ["first.txt"])
