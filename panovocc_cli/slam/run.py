@@ -97,7 +97,7 @@ def world_of(tracker: Tracker, first_pose: str | None) -> dict:
     if first_pose is None:
         words = "the first placed frame's camera, levelled (world +Z = its up), at the origin"
     elif first_pose == FIRST_POSE_REFERENCE:
-        words = "the reference trajectory's (--first-pose reference): the first placed frame at its reference pose"
+        words = "the reference trajectory's world (--first-pose reference): the first placed frame at its pose there"
     else:
         words = f"the first placed frame at the pose in {first_pose} (--first-pose)"
     first = tracker.keyframes[0].frame_id if tracker.keyframes else None

@@ -54,7 +54,7 @@ def test_first_pose_reference_puts_the_map_in_the_reference_world(short_seq, tmp
     assert raw < 0.005 and raw < aligned + 0.002, (raw, aligned)  # measured 0.8 and 0.6 mm
     t, tum, _ = read_trajectory(tmp_path / "ref" / "trajectory.tum")
     assert np.allclose(tum, est[t.astype(int)], atol=1e-9)
-    assert (tmp_path / "ref" / "trajectory.tum").read_text().startswith("# world: ")
+    assert (tmp_path / "ref" / "trajectory.tum").read_text().startswith("# world: the reference trajectory's world")
     # the records say which world
     cfg = json.loads((tmp_path / "ref" / "config.json").read_text())
     assert cfg["first_pose"] == "reference"
