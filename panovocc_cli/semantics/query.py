@@ -326,6 +326,9 @@ class MapQuery:
     vocab : list of C class names; export : MapExport of the map (occupied voxels, labels, channels);
     voxel_size : float, metres; open_seconds : float, seconds spent opening and exporting the map
 
+    Memory: the export (the occupied voxels' keys, labels and channels, as ``panovocc query`` held them) and,
+    from the first question on, their class distribution ``(n, C) float64`` (8 C bytes per occupied voxel).
+
     Raises
     ------
     PanovoccError
