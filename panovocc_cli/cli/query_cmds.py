@@ -1,13 +1,13 @@
 """``query`` (a finished map asked in words) and ``relabel`` (its grid under a new vocabulary).
 
-The maths is :mod:`panovocc_cli.semantics.query`; ``run_query`` / ``run_relabel`` here open the map folder
-(``Mapper.load``: memory.npz, config.json), call it and write the outputs, and are usable from Python.
+The maths is :mod:`panovocc_cli.semantics.query`; ``run_query`` asks its :class:`MapQuery` (the map opened and
+exported once, the text model loaded once, for any number of texts) and writes ``--out``; ``run_relabel`` opens
+the map folder (``Mapper.load``: memory.npz, config.json) and writes the new grid. Both are usable from Python.
 """
 
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +16,7 @@ import typer
 from ..config import option, validate_config
 from ..errors import PanovoccError, printable
 from ..semantics.query import (DEFAULT_MARGIN, DEFAULT_MIN_SIMILARITY, DEFAULT_RELABEL_SIMILARITY,
-                               DEFAULT_TEMPERATURE, TEXT_MODEL)
+                               DEFAULT_TEMPERATURE)
 from ._app import app
 from .options import OptionValues, config_command
 
@@ -34,9 +34,11 @@ class QueryConfig:
 
     map_dir: Path = option(argument=True, metavar="OUT", help="Map folder written by panovocc map (config.json, "
                            "memory.npz).")
-    text: str = option(argument=True, metavar="TEXT", help="What to look for, in words, e.g. 'a place to sleep'.")
+    texts: list[str] = option(argument=True, metavar="TEXT", help="What to look for, in words, e.g. 'a place "
+                              "to sleep'; several texts are answered in order, the map and the text model loaded "
+                              "once.")
     top: int = option(5, min=1, max=1000, help="Number of clusters listed (best first).")
-    out: Path | None = option(None, help="Also write the answer: .json (classes, clusters, best voxels), .ply "
+    out: Path | None = option(None, help="Also write the answer (one TEXT only): .json (classes, clusters, best voxels), .ply "
                               "(occupied voxels, matches coloured by score) or .png (top view with boxes).")
     min_voxels: int = option(3, min=1, help="Smallest cluster reported, in voxels.")
     min_similarity: float = option(DEFAULT_MIN_SIMILARITY, min=-1.0, max=1.0, help="Text cosine a class needs "
@@ -62,77 +64,49 @@ class RelabelConfig:
     overwrite: bool = option(False, help="Replace an existing NEW.npz (never an input).")
 
 
-def _load_map(map_dir: Path):
-    from ..io import mapstore
-    from ..mapping.mapper import Mapper
-
-    map_dir = Path(map_dir)
-    if not map_dir.is_dir():
-        raise PanovoccError("map folder not found", map_dir)
-    from ..io.atomic import is_output_of_kind
-
-    mapstore.read_map_config(map_dir)  # one-line error when there is no readable config.json
-    if not is_output_of_kind(map_dir, "map"):
-        raise PanovoccError("not a panovocc map folder (its config.json is not a map run's)", map_dir)
-    if not (map_dir / mapstore.MEMORY_NAME).is_file():
-        raise PanovoccError(f"no {mapstore.MEMORY_NAME} (the map run has not saved its memory yet)", map_dir)
-    return Mapper.load(map_dir)
-
-
-def run_query(cfg: QueryConfig, encode=None) -> dict:
-    """Answer ``cfg.text`` on the map in ``cfg.map_dir``; write ``cfg.out`` when given.
+def run_query(cfg: QueryConfig, encode=None) -> list[dict]:
+    """Answer each of ``cfg.texts`` on the map in ``cfg.map_dir`` (opened and exported once, the text model
+    loaded once: :class:`semantics.query.MapQuery`); write ``cfg.out`` when given (one text only).
 
     Parameters
     ----------
-    cfg : QueryConfig
+    cfg : QueryConfig (``texts``: a list of texts, or one str)
     encode : TextEncoder or None (the packaged MiniLM, :func:`semantics.query.minilm_encoder`)
 
     Returns
     -------
-    dict (JSON-able): ``query``, ``text_model``, ``match`` (similarity per class, matched classes with
-    weights), ``voxels`` (matching voxels), ``clusters`` (the best ``top``, :meth:`Cluster.to_json`) and
-    ``best_voxels`` (up to 20 centres in metres with their scores), ``seconds``
+    list of dict, one per text in order, each :meth:`MapQuery.ask`'s answer (JSON-able): ``query``,
+    ``text_model``, ``match``, ``voxels``, ``clusters`` (the best ``top``), ``best_voxels``, ``seconds``
+
+    Raises
+    ------
+    PanovoccError
+        Before the map or the text model is loaded: an empty or non-UTF-8 text, ``out`` with several
+        texts or a suffix other than .json/.ply/.png, an existing ``out`` without ``overwrite``.
     """
     from ..io.runconfig import check_file_output
-    from ..semantics.query import class_distribution, find_clusters, match_classes, minilm_encoder, voxel_scores
+    from ..semantics.query import MapQuery, check_query
 
-    t0 = time.perf_counter()
     cfg = validate_config(cfg)
+    texts = [cfg.texts] if isinstance(cfg.texts, str) else list(cfg.texts)
+    if not texts:
+        raise PanovoccError("no TEXT given; expected what to look for, in words, e.g. 'a place to sleep'")
+    for k, text in enumerate(texts, 1):
+        check_query(text, "the query" if len(texts) == 1 else f"TEXT {k} of {len(texts)}")
     if cfg.out is not None:
+        if len(texts) > 1:
+            raise PanovoccError(f"--out writes the answer to one TEXT; got {len(texts)} texts (ask them one by one "
+                                f"with --out, or print all answers with --json)", cfg.out)
         if Path(cfg.out).suffix.lower() not in QUERY_OUTPUTS:
             raise PanovoccError(f"--out must end in {', '.join(QUERY_OUTPUTS)}", cfg.out)
         check_file_output(cfg.out, "query", cfg.overwrite, inputs=[cfg.map_dir])
-    mapper = _load_map(cfg.map_dir)
-    try:
-        vocab = list(mapper.config.vocab)
-        if not vocab:
-            raise PanovoccError("the map has no semantic evidence (mapped with --segmenter none): it cannot be "
-                                "queried by words", Path(cfg.map_dir) / "config.json")
-        ex = mapper.export()
-        h = mapper.config.geometry.voxel_size
-    finally:
-        mapper.close()
-    encode = encode or minilm_encoder()
-    match = match_classes(cfg.text, vocab, encode, min_similarity=cfg.min_similarity, margin=cfg.margin,
-                          temperature=cfg.temperature)
-    labels = ex.labels
-    p = class_distribution(ex.channels["E"], ex.channels["S"], labels)
-    scores = voxel_scores(p, match.weights)
-    import numpy as np
-
-    mask = np.isin(labels, match.matched) if len(match.matched) else np.zeros(len(labels), bool)
-    clusters = find_clusters(ex.occupied_keys, mask, scores, labels, vocab, h, cfg.min_voxels, ex.origin_index)
-    best = np.flatnonzero(mask)[np.argsort(-scores[mask], kind="stable")][:20]
-    centres = ex.centres(best)
-    result = {"query": match.query, "map": str(cfg.map_dir), "text_model": TEXT_MODEL, "vocabulary": vocab,
-              "match": match.to_json(), "voxels": int(mask.sum()), "clusters_total": len(clusters),
-              "clusters": [c.to_json() for c in clusters[:cfg.top]],
-              "best_voxels": [{"centre_m": [round(float(x), 4) for x in c], "score": round(float(s), 4),
-                               "class": vocab[int(lab)]} for c, s, lab in zip(centres, scores[best], labels[best])]}
+    q = MapQuery(cfg.map_dir, encoder=None if encode is None else (lambda: encode))
+    answers = [q.answer(t, cfg.top, min_voxels=cfg.min_voxels, min_similarity=cfg.min_similarity,
+                        margin=cfg.margin, temperature=cfg.temperature) for t in texts]
     if cfg.out is not None:
-        _write_query_output(cfg, result, ex, h, scores, mask, clusters[:cfg.top])
-    result["seconds"] = round(time.perf_counter() - t0, 3)
-    return result
+        a = answers[0]
+        _write_query_output(cfg, a.result, q.export, q.voxel_size, a.scores, a.mask, a.clusters[:cfg.top])
+    return [a.result for a in answers]
 
 
 def _score_colors(s):
@@ -154,8 +128,8 @@ def _write_query_output(cfg: QueryConfig, result: dict, ex, h: float, scores, ma
     cols = np.tile(np.array(OTHER_COLOR, np.uint8), (len(pts), 1))
     cols[mask] = _score_colors(scores[mask])
     with output_file(out):
-        if suffix == ".json":
-            write_text(out, json.dumps(result, indent=2) + "\n")
+        if suffix == ".json":  # without the timing: the same question gives the same bytes
+            write_text(out, json.dumps({k: v for k, v in result.items() if k != "seconds"}, indent=2) + "\n")
         elif suffix == ".ply":
             from ..io.ply import write_ply_points
 
@@ -219,14 +193,14 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     from ..io.grid import write_grid
     from ..io.runconfig import check_file_output, write_run_config
     from ..mapping.export import export_memory
-    from ..semantics.query import minilm_encoder, parse_relabel_vocab, relabel_matrix
+    from ..semantics.query import minilm_encoder, open_map, parse_relabel_vocab, relabel_matrix
 
     cfg = validate_config(cfg)
     if Path(cfg.out_npz).suffix.lower() != ".npz":
         raise PanovoccError("output must be a .npz grid", cfg.out_npz)
     config_path = check_file_output(cfg.out_npz, "grid", cfg.overwrite, inputs=[cfg.map_dir])
     new = parse_relabel_vocab(cfg.vocab)
-    mapper = _load_map(cfg.map_dir)
+    mapper = open_map(cfg.map_dir)
     try:
         stored = list(mapper.config.vocab)
         if not stored:
@@ -286,10 +260,13 @@ def format_query(res: dict) -> str:
 
 @config_command(app, QueryConfig, "query")
 def query(o: OptionValues, as_json: bool = typer.Option(False, "--json", help="Print the answer as one JSON "
-                                                                               "object instead of a summary.")) -> None:
-    """Find what a free-text query names in a finished map: matched classes, voxels, clusters with boxes."""
+                                                                               "object (several TEXTs: a list of "
+                                                                               "them, in order) instead of a "
+                                                                               "summary.")) -> None:
+    """Find what free-text queries name in a finished map: matched classes, voxels, clusters with boxes (one
+    block per TEXT)."""
     res = run_query(QueryConfig(**o))
-    typer.echo(json.dumps(res) if as_json else format_query(res))
+    typer.echo(json.dumps(res[0] if len(res) == 1 else res) if as_json else "\n\n".join(map(format_query, res)))
     if o["out"] is not None and not as_json:
         typer.echo(f"wrote {o['out']}")
 

