@@ -149,14 +149,29 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
             _put_values(arrays, prefix, name, _compact(arr))
 
 
+GCD_ROWS = 1 << 18
+"""Rows whose common divisor is taken at a time (:func:`_gcd_of`: no int64 copy of a whole channel)."""
+
+
+def _gcd_of(a: np.ndarray) -> int:
+    """The greatest common divisor of all of ``a``'s values (0 when empty or all zero), a block of rows at a
+    time: the gcd of the blocks' gcds is the whole array's."""
+    g = 0
+    for r in range(0, len(a), GCD_ROWS):
+        g = int(np.gcd(g, int(np.gcd.reduce(np.abs(a[r:r + GCD_ROWS].astype(np.int64)), axis=None))))
+        if g == 1:
+            break
+    return g
+
+
 def _put_values(arrays: dict, prefix: str, name: str, a: np.ndarray) -> None:
     """A channel's kept rows ``a`` (m, width): as byte planes, or, when wide and mostly zeros, as its
     non-zero entries and their bit mask; values with a common divisor g > 1 as the quotients and g
     (``{prefix}gcd_NAME``) (:func:`_encode_channels`)."""
-    g = int(np.gcd.reduce(np.abs(a.astype(np.int64)), axis=None)) if a.size else 0
+    g = _gcd_of(a)
     if g > 1:
         arrays[f"{prefix}gcd_{name}"] = np.array([g], np.int64)
-        a = _compact(a.astype(np.int64) // g)
+        a = _compact(a // a.dtype.type(g))  # exact: g divides every value (in a's own type: no int64 copy)
     if a.ndim == 2 and a.shape[1] >= 4:
         mask = a != 0
         k = int(mask.sum())

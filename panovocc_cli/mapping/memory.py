@@ -647,8 +647,10 @@ class VoxelMemory:
                             "pass the int64 range: the delta is refused (a value is never wrapped)")
 
     # -- reads -----------------------------------------------------------------------------------
-    def _channels_at(self, loc: np.ndarray, names) -> dict:
-        """Channels ``names`` at storage locations ``loc`` (n,) (-1: zeros) as name -> (n, width) int64."""
+    def _channels_at(self, loc: np.ndarray, names, stored: bool = False) -> dict:
+        """Channels ``names`` at storage locations ``loc`` (n,) (-1: zeros) as name -> (n, width) int64
+        (``stored``: in the group's storage type, int32 until a sum widened it: the same values, half the
+        bytes, for a whole-memory read such as ``memory.npz``'s)."""
         loc = np.ascontiguousarray(loc, np.int64)
         out = {}
         dense = sparse = None
@@ -657,13 +659,13 @@ class VoxelMemory:
             c0 = self.offsets[name]
             if name in GEOMETRY_NAMES:
                 if dense is None:
-                    dense = np.zeros((len(loc), self.dense_width), np.int64)
+                    dense = np.zeros((len(loc), self.dense_width), self._geo.dtype if stored else np.int64)
                     _dense_at(self._geo, loc, dense)
                 d0 = self._dense_col[c0]
                 out[name] = dense[:, d0:d0 + spec.width]
             else:
                 if sparse is None:
-                    sparse = np.zeros((len(loc), self.sparse_width), np.int64)
+                    sparse = np.zeros((len(loc), self.sparse_width), self._rows.dtype if stored else np.int64)
                     _sparse_at(self._page_of, self._pages, self._rows, loc, sparse)
                 s0 = self._sparse_col[c0]
                 out[name] = sparse[:, s0:s0 + spec.width]
@@ -718,8 +720,8 @@ class VoxelMemory:
         dense = [s.name for s in self.specs if s.name in GEOMETRY_NAMES]
         rest = [s.name for s in self.specs if s.name not in GEOMETRY_NAMES]
         out = self._header(keys)
-        got = self._channels_at(ch._loc, dense)
-        at = ch.at(pos, rest)
+        got = self._channels_at(ch._loc, dense, stored=True)
+        at = self._channels_at(ch._loc[pos], rest, stored=True)
         for s in self.specs:
             out[f"ch_{s.name}"] = got[s.name] if s.name in got else SparseRows(pos, at[s.name], len(keys))
         return out
