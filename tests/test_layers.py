@@ -20,7 +20,7 @@ FLOORS = {
     "datasets": 4, "semantics": 4, "evaluation": 4,
     "rendering": 5, "gt": 5, "gt_config": 5,
     "mapping": 6,
-    "baselines": 7, "views": 7, "demo": 7, "slam": 7, "viz": 7,
+    "baselines": 7, "views": 7, "demo": 7, "slam": 7, "viz": 7, "mapquery": 7,
     "benchmark": 8,
     "cli": 9, "__main__": 10, "__init__": 10,
 }

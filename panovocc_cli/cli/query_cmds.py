@@ -1,6 +1,6 @@
 """``query`` (a finished map asked in words) and ``relabel`` (its grid under a new vocabulary).
 
-The maths is :mod:`panovocc_cli.semantics.query`; ``run_query`` asks its :class:`MapQuery` (the map opened and
+The maths is :mod:`panovocc_cli.semantics.query`; ``run_query`` asks :class:`panovocc_cli.mapquery.MapQuery` (the map opened and
 exported once, the text model loaded once, for any number of texts) and writes ``--out``; ``run_relabel`` opens
 the map folder (``Mapper.load``: memory.npz, config.json) and writes the new grid. Both are usable from Python.
 """
@@ -66,7 +66,7 @@ class RelabelConfig:
 
 def run_query(cfg: QueryConfig, encode=None) -> list[dict]:
     """Answer each of ``cfg.texts`` on the map in ``cfg.map_dir`` (opened and exported once, the text model
-    loaded once: :class:`semantics.query.MapQuery`); write ``cfg.out`` when given (one text only).
+    loaded once: :class:`panovocc_cli.mapquery.MapQuery`); write ``cfg.out`` when given (one text only).
 
     Parameters
     ----------
@@ -85,7 +85,8 @@ def run_query(cfg: QueryConfig, encode=None) -> list[dict]:
         texts or a suffix other than .json/.ply/.png, an existing ``out`` without ``overwrite``.
     """
     from ..io.runconfig import check_file_output
-    from ..semantics.query import MapQuery, check_query
+    from ..mapquery import MapQuery
+    from ..semantics.query import check_query
 
     cfg = validate_config(cfg)
     texts = [cfg.texts] if isinstance(cfg.texts, str) else list(cfg.texts)
@@ -193,7 +194,8 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     from ..io.grid import write_grid
     from ..io.runconfig import check_file_output, write_run_config
     from ..mapping.export import export_memory
-    from ..semantics.query import minilm_encoder, open_map, parse_relabel_vocab, relabel_matrix
+    from ..mapquery import open_map
+    from ..semantics.query import minilm_encoder, parse_relabel_vocab, relabel_matrix
 
     cfg = validate_config(cfg)
     if Path(cfg.out_npz).suffix.lower() != ".npz":

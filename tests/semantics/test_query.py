@@ -310,7 +310,7 @@ def test_several_texts_give_the_answers_of_separate_calls_with_the_map_opened_on
 
 def test_map_query_answers_twice_with_one_text_model_load(room_map):
     from panovocc_cli.cli.query_cmds import QueryConfig, run_query
-    from panovocc_cli.semantics.query import MapQuery
+    from panovocc_cli.mapquery import MapQuery
 
     built = []
 
