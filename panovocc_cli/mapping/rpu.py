@@ -245,15 +245,18 @@ class DeltaStore:
                 self._writer = None
 
     # -- persistence -----------------------------------------------------------------------------
-    def commit(self, background: bool = False, before=None) -> None:
+    def commit(self, background: bool = False, before=None, after=None) -> None:
         """A checkpoint: every kept delta on disk, ``before()`` (if given: the snapshot files of a save),
-        then a journal entry (fsync'd); on the writer thread with ``background``."""
+        then a journal entry (fsync'd), then ``after()`` (if given: what must follow the commit, a save's
+        poses.txt); on the writer thread with ``background``."""
         self.flush()
 
         def finish():
             if before is not None:
                 before()
             self._log.commit(compact=before is not None)
+            if after is not None:
+                after()
 
         if background:
             self._submit(finish)
@@ -389,13 +392,13 @@ class ReversibleMemory:
             raise PanovoccError("a checkpoint needs a folder (this memory keeps its deltas in RAM)")
         self.store.commit(background)
 
-    def save(self, folder: str | Path, background: bool = False) -> None:
+    def save(self, folder: str | Path, background: bool = False, after=None) -> None:
         """Persist into ``folder``: every kept delta and a COMMIT, then the memory snapshot ``memory.npz``
-        and ``deltas/snapshot.npz``.
+        and ``deltas/snapshot.npz``; then ``after()`` (if given), once the commit is made.
 
         ``memory.npz`` lists the kept frames' poses in id order; their ids are stored too unless they are
-        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the snapshot and the
-        commit are written on the writer thread from the memory as it is now."""
+        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the snapshot, the
+        commit and ``after`` run on the writer thread from the memory as it is now."""
         self._flush()
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -414,7 +417,7 @@ class ReversibleMemory:
 
             write_npz(folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
 
-        store.commit(background, before=write)
+        store.commit(background, before=write, after=after)
 
     def rollback(self) -> None:
         """After a failed command: cut the uncommitted records (the memory object is not usable after)."""
