@@ -48,6 +48,8 @@ GEOMETRY_NAMES = ("A", "N", "F", "O")  # the dense group: kept for every voxel o
 RESERVE_BLOCKS = 1 << 20  # blocks (512 M voxels) reserved up front where untouched pages cost nothing
 RESERVE_ROWS = 1 << 26  # sparse-group rows reserved likewise
 FALLBACK_BLOCKS = 1 << 10  # initial blocks where nothing can be reserved (then doubled by copying)
+LOAD_CHUNK = 1 << 18  # rows a memory file is added in at a time (from_arrays): a few MB of (rows, channels)
+#                       int64, reused from the heap, instead of one matrix of every voxel (0.5 GB for a building)
 _MAP_NORESERVE = 0x4000  # Linux mmap flag: no swap reservation for the mapping (mmap lacks the name)
 _I32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
 _I64 = (int(np.iinfo(np.int64).min), int(np.iinfo(np.int64).max))
@@ -744,11 +746,13 @@ class VoxelMemory:
             for group in (True, False):  # the geometry, then the rest: rows only where a value is non-zero
                 ch = {s.name: z[f"ch_{s.name}"] for s in specs if (s.name in GEOMETRY_NAMES) == group}
                 full = {k: v for k, v in ch.items() if not hasattr(v, "rows")}
-                if full:
-                    mem.add(Delta(keys, full))
+                for a in range(0, len(keys) if full else 0, LOAD_CHUNK):  # LOAD_CHUNK rows at a time
+                    mem.add(Delta(keys[a:a + LOAD_CHUNK], {k: v[a:a + LOAD_CHUNK] for k, v in full.items()}))
                 for name, v in ch.items():
                     if hasattr(v, "rows"):  # io.mapstore.SparseRows: its rows only
-                        mem.add(Delta(keys[v.rows], {name: v.values}))
+                        for a in range(0, len(v.rows), LOAD_CHUNK):
+                            rows = v.rows[a:a + LOAD_CHUNK]
+                            mem.add(Delta(keys[rows], {name: v.values[a:a + LOAD_CHUNK]}))
         except KeyError as e:
             raise PanovoccError(f"memory file lacks {e}", where) from None
         return mem

@@ -224,3 +224,29 @@ def test_memory_file_from_sparse_rows_has_the_same_bytes(tmp_path):
         back = VoxelMemory.from_arrays(arrays).to_arrays()
         for key, want in m.to_arrays().items():
             np.testing.assert_array_equal(back[key], want)
+
+
+def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
+    """``from_arrays`` adds a memory file's voxels ``LOAD_CHUNK`` rows at a time (a loaded building's
+    (rows, channels) int64 matrix would be half a gigabyte of fresh pages), dense rows and sparse rows alike,
+    and rebuilds the same memory."""
+    from panovocc_cli.io.mapstore import SparseRows
+    from panovocc_cli.mapping import memory
+
+    rng = np.random.default_rng(11)
+    geo = _random_delta(rng, n=3000, span=40)
+    m = VoxelMemory(0.08, _semantic_specs(3))
+    sk = geo.keys[::5]
+    m.add(Delta(sk, {"E": rng.integers(0, 4, (len(sk), 3)), "count": np.ones((len(sk), 1), np.int64)}))
+    m.add(geo)
+    want = m.to_arrays()
+    sizes = []
+    real = VoxelMemory.add
+    monkeypatch.setattr(VoxelMemory, "add", lambda self, d, sign=1: (sizes.append(len(d)), real(self, d, sign))[1])
+    monkeypatch.setattr(memory, "LOAD_CHUNK", 64)
+    for arrays in (want, m.to_arrays(sparse=True)):
+        sizes.clear()
+        back = VoxelMemory.from_arrays(arrays).to_arrays()
+        assert max(sizes) <= 64 and sum(sizes) >= len(want["keys"])
+        for key, value in want.items():
+            np.testing.assert_array_equal(back[key], value.dense() if isinstance(value, SparseRows) else value)
