@@ -342,6 +342,38 @@ def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n
 
 
 @nb.njit(cache=True)
+def _difference(ka, va, kb, vb):
+    """``vb - va`` over the union of sorted unique keys ``ka`` (na,) and ``kb`` (nb,) (values (n, m) int64, a
+    row absent from one side counting as zeros): (ok, keys (n,), values (n, m)); ok False when a difference
+    would pass int64 (nothing is wrapped: the caller then subtracts and adds apart)."""
+    na, nb_, m = ka.shape[0], kb.shape[0], va.shape[1]
+    i = j = n = 0
+    while i < na and j < nb_:
+        a, b = ka[i], kb[j]
+        i += a <= b
+        j += b <= a
+        n += 1
+    n += na - i + nb_ - j
+    keys = np.empty(n, np.int64)
+    vals = np.empty((n, m), np.int64)
+    lo, hi = np.iinfo(np.int64).min, np.iinfo(np.int64).max
+    i = j = 0
+    for r in range(n):
+        take_a = j >= nb_ or (i < na and ka[i] <= kb[j])
+        take_b = i >= na or (j < nb_ and kb[j] <= ka[i])
+        for c in range(m):
+            a = va[i, c] if take_a else 0
+            b = vb[j, c] if take_b else 0
+            if (a < 0 and b > hi + a) or (a > 0 and b < lo + a):
+                return False, keys[:0], vals[:0]
+            vals[r, c] = b - a
+        keys[r] = ka[i] if take_a else kb[j]
+        i += take_a
+        j += take_b
+    return True, keys, vals
+
+
+@nb.njit(cache=True)
 def _rehash(block_keys, n_blocks, cap):
     tk = np.full(cap, -1, np.int64)
     ts = np.zeros(cap, np.int64)
@@ -566,6 +598,41 @@ class VoxelMemory:
                 if has_dense:
                     self._add_group("dense", keys, vals, dcols, -sign)
                 self._refuse("sparse", keys[stop])
+
+    def replace(self, old: "Delta | FrameDelta", new: "Delta | FrameDelta") -> None:
+        """Subtract ``old`` and add ``new`` (a revised frame's kept and recomputed deltas): the memory that
+        ``add(old, -1)`` then ``add(new, +1)`` gives, bit for bit, with the same blocks and rows allocated,
+        in one pass over the union of their keys for each part (a frame moved by a pose correction keeps
+        most of its voxels, so the union is about one delta, not two). Parts of ``new`` whose channels no
+        part of ``old`` has, or a difference past int64, take the two passes. A refused sum leaves the
+        memory as it was (:class:`PanovoccError`)."""
+        olds = list(old.parts) if isinstance(old, FrameDelta) else [old]
+        news = list(new.parts) if isinstance(new, FrameDelta) else [new]
+        olds = [p for p in olds if len(p) and p.channels]
+        news = [p for p in news if len(p) and p.channels]
+        diffs = []
+        for n in news:
+            names = sorted(n.channels)
+            o = next((o for o in olds if sorted(o.channels) == names
+                      and all(o.channels[k].shape[1] == n.channels[k].shape[1] for k in names)), None)
+            if o is None:
+                break
+            va = np.concatenate([o.channels[k] for k in names], axis=1)
+            vb = np.concatenate([n.channels[k] for k in names], axis=1)
+            ok, keys, vals = _difference(o.keys, va, n.keys, vb)
+            if not ok:
+                break
+            widths = np.cumsum([0] + [n.channels[k].shape[1] for k in names])
+            diffs.append(Delta(keys, {k: vals[:, widths[c]:widths[c + 1]] for c, k in enumerate(names)}))
+        if len(diffs) == len(news) == len(olds):
+            self.add(FrameDelta(tuple(diffs)))
+            return
+        self.add(FrameDelta(tuple(olds)), -1)
+        try:
+            self.add(FrameDelta(tuple(news)), +1)
+        except PanovoccError:
+            self.add(FrameDelta(tuple(olds)), +1)
+            raise
 
     def _add_group(self, group: str, keys, vals, cols, sign) -> int | None:
         """Scatter-add one group's columns; growing and widening as needed. Returns None when done, or the

@@ -368,8 +368,7 @@ class ReversibleMemory:
         if old is None:
             old = self.store.get(frame_id)
         delta = _as_frame_delta(delta)
-        self.memory.add(old, -1)
-        self.memory.add(delta, +1)
+        self.memory.replace(old, delta)  # one pass over the union of their voxels
         self.store.put(frame_id, delta, T_world_cam, old=old)
 
     def remove(self, frame_id: int) -> None:

@@ -250,3 +250,42 @@ def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
         assert max(sizes) <= 64 and sum(sizes) >= len(want["keys"])
         for key, value in want.items():
             np.testing.assert_array_equal(back[key], value.dense() if isinstance(value, SparseRows) else value)
+
+
+def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
+    """``replace(old, new)`` (a revision's swap of a frame's delta) gives the memory ``add(old, -1)`` then
+    ``add(new, +1)`` gives, bit for bit and with the same allocated blocks and rows, adding each part once
+    over the union of its keys; parts of different channels, and differences past int64, take the two
+    passes."""
+    rng = np.random.default_rng(12)
+    specs = _semantic_specs(3)
+
+    def frame():
+        geo = _random_delta(rng, n=4000, span=30)
+        sk = geo.keys[::7]
+        sem = Delta(sk, {"E": rng.integers(0, 5, (len(sk), 3)), "S": rng.integers(0, 9, (len(sk), 1)),
+                         "count": np.ones((len(sk), 1), np.int64)})
+        return FrameDelta((geo, sem))
+
+    kept, old, new = frame(), frame(), frame()
+    cases = [(old, new), (old, FrameDelta(new.parts[:1])), (FrameDelta(old.parts[1:]), new)]
+    big = Delta(old.parts[0].keys[:3], {c: np.full((3, 1), 2 ** 62) for c in ("A", "N", "F", "O")})
+    cases.append((FrameDelta((Delta(big.keys, {c: -v for c, v in big.channels.items()}),)), FrameDelta((big,))))
+    for case, (o, n) in enumerate(cases):
+        want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
+        for m in (want, got):
+            m.add(kept)
+            m.add(o)
+        want.add(o, -1)
+        want.add(n, +1)
+        passes = []
+        real = VoxelMemory._add_group
+        monkeypatch.setattr(VoxelMemory, "_add_group", lambda self, g, k, *a: (passes.append((g, len(k))), real(self, g, k, *a))[1])
+        got.replace(o, n)
+        monkeypatch.setattr(VoxelMemory, "_add_group", real)
+        if case == 0:
+            assert [g for g, _ in passes] == ["dense", "sparse"], passes  # one pass a group
+        a, b = want.to_arrays(), got.to_arrays()
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+        assert (want.n_blocks, want.n_pages, want.n_rows) == (got.n_blocks, got.n_pages, got.n_rows)
