@@ -149,11 +149,32 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
             _put_values(arrays, prefix, name, _compact(arr))
 
 
+_GCD_BLOCK = 1 << 12  # values in the first block common_divisor reads (then 4x more each block)
+
+
+def _gcd_reduce(a: np.ndarray):
+    return np.gcd.reduce(a)
+
+
+def common_divisor(a: np.ndarray) -> int:
+    """The greatest common divisor of the values of the integer array ``a`` (any shape; 0 when it has no
+    value other than 0): ``np.gcd.reduce(np.abs(a.astype(np.int64)), axis=None)``, read block by block
+    (growing) and stopped once it is 1, which the first block of most channels settles (a memory
+    channel's 16.7 M values cost ~0.15-0.5 s CPU in one reduction)."""
+    flat = np.asarray(a).reshape(-1)
+    g, start, step = 0, 0, _GCD_BLOCK
+    while start < flat.size and g != 1:
+        g = int(np.gcd(g, _gcd_reduce(np.abs(flat[start:start + step].astype(np.int64)))))
+        start += step
+        step *= 4
+    return g
+
+
 def _put_values(arrays: dict, prefix: str, name: str, a: np.ndarray) -> None:
     """A channel's kept rows ``a`` (m, width): as byte planes, or, when wide and mostly zeros, as its
     non-zero entries and their bit mask; values with a common divisor g > 1 as the quotients and g
     (``{prefix}gcd_NAME``) (:func:`_encode_channels`)."""
-    g = int(np.gcd.reduce(np.abs(a.astype(np.int64)), axis=None)) if a.size else 0
+    g = common_divisor(a)
     if g > 1:
         arrays[f"{prefix}gcd_{name}"] = np.array([g], np.int64)
         a = _compact(a.astype(np.int64) // g)
