@@ -149,11 +149,15 @@ class DeltaStore:
         return sorted(self.poses)
 
     def get(self, frame_id: int) -> FrameDelta:
-        """The kept delta of ``frame_id`` (int64 channels)."""
+        """The kept delta of ``frame_id`` (int64 channels). Waits for the writer thread only when this
+        frame's record is the one being written: any other kept record is on disk already, so a revision
+        reads and decodes the next frame's old delta while the last one's record is compressed (a failed
+        write is reported by the next change, :meth:`ReversibleMemory._flush`)."""
         fid = int(frame_id)
         if fid not in self.poses:
             raise PanovoccError(f"frame {fid} is not in the map")
-        self.flush()
+        if self._inflight is not None and self._inflight[0] == fid:
+            self.flush()
         if self.folder is None:
             parts, obs = self._ram[fid]
             return FrameDelta(tuple(Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()})

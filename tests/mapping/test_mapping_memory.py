@@ -289,3 +289,34 @@ def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
         assert (want.n_blocks, want.n_pages, want.n_rows) == (got.n_blocks, got.n_pages, got.n_rows)
+
+
+def test_reading_a_kept_delta_waits_only_for_its_own_pending_write(tmp_path, monkeypatch):
+    """``DeltaStore.get`` of a frame whose record is not the one being written does not wait for the writer
+    thread (a revision reads the next frame's old delta while the last one's record is compressed); the
+    frame in flight waits and reads its new delta."""
+    import threading
+    import time
+
+    from panovocc_cli.io import mapstore
+    from panovocc_cli.mapping.rpu import DeltaStore
+
+    rng = np.random.default_rng(13)
+    d0, d1, d2 = (_random_delta(rng, n=500, span=20) for _ in range(3))
+    store = DeltaStore(tmp_path / "m")
+    store.put(0, d0, np.eye(4))
+    store.put(1, d1, np.eye(4))
+    store.flush()
+    release = threading.Event()
+    real = mapstore.DeltaLog.append
+    monkeypatch.setattr(mapstore.DeltaLog, "append", lambda self, *a: (release.wait(10), real(self, *a))[1])
+    store.put(1, d2, 2 * np.eye(4))  # its record waits on the writer thread
+    threading.Timer(1.5, release.set).start()
+    t0 = time.perf_counter()
+    got = store.get(0)
+    assert time.perf_counter() - t0 < 1.0
+    np.testing.assert_array_equal(got.parts[0].channels["F"], d0.channels["F"])
+    got = store.get(1)  # the frame in flight: after its write
+    assert time.perf_counter() - t0 >= 1.4
+    np.testing.assert_array_equal(got.parts[0].channels["F"], d2.channels["F"])
+    store.close()
