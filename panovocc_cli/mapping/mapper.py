@@ -311,8 +311,8 @@ class Mapper:
         that cannot be read or holds other parameters is refused before anything is written) and
         ``poses.txt`` (the kept frames' poses in id order). Deltas kept in RAM move to ``folder``.
         ``background=True``: ``memory.npz`` (of the memory as it is at the call), the commit and then
-        ``poses.txt`` are written on the delta writer thread while the caller goes on (``map`` and
-        ``revise`` label the grid meanwhile); they are on disk once :meth:`close` returns, which re-raises
+        ``poses.txt`` are written on the delta writer thread while the caller goes on (``map`` writes its
+        grid and PLY meanwhile); they are on disk once :meth:`close` returns, which re-raises
         a failed write (poses.txt is then left as it was).
         """
         folder = Path(folder) if folder is not None else self.folder
