@@ -485,6 +485,21 @@ class NonzeroChannels(Mapping):
         return self._memory._channels_at(self._loc[np.asarray(pos, np.int64)], names)
 
 
+def _same_rows(channels: Mapping) -> list:
+    """Names of channels stored as rows (``io.mapstore.SparseRows``), grouped by equal row positions (a
+    memory file's semantic channels mostly share theirs), each group in the order given."""
+    groups: list = []
+    for name, v in channels.items():
+        for g in groups:
+            r = channels[g[0]].rows
+            if len(r) == len(v.rows) and np.array_equal(r, v.rows):
+                g.append(name)
+                break
+        else:
+            groups.append([name])
+    return groups
+
+
 class VoxelMemory:
     """Sparse hashed-block memory of integer channels (see the module docstring).
 
@@ -815,11 +830,11 @@ class VoxelMemory:
                 full = {k: v for k, v in ch.items() if not hasattr(v, "rows")}
                 for a in range(0, len(keys) if full else 0, LOAD_CHUNK):  # LOAD_CHUNK rows at a time
                     mem.add(Delta(keys[a:a + LOAD_CHUNK], {k: v[a:a + LOAD_CHUNK] for k, v in full.items()}))
-                for name, v in ch.items():
-                    if hasattr(v, "rows"):  # io.mapstore.SparseRows: its rows only
-                        for a in range(0, len(v.rows), LOAD_CHUNK):
-                            rows = v.rows[a:a + LOAD_CHUNK]
-                            mem.add(Delta(keys[rows], {name: v.values[a:a + LOAD_CHUNK]}))
+                for names in _same_rows({k: v for k, v in ch.items() if hasattr(v, "rows")}):
+                    rows_all = ch[names[0]].rows  # io.mapstore.SparseRows: their rows only, in one pass
+                    for a in range(0, len(rows_all), LOAD_CHUNK):
+                        mem.add(Delta(keys[rows_all[a:a + LOAD_CHUNK]],
+                                      {k: ch[k].values[a:a + LOAD_CHUNK] for k in names}))
         except KeyError as e:
             raise PanovoccError(f"memory file lacks {e}", where) from None
         return mem

@@ -229,7 +229,7 @@ def test_memory_file_from_sparse_rows_has_the_same_bytes(tmp_path):
 def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
     """``from_arrays`` adds a memory file's voxels ``LOAD_CHUNK`` rows at a time (a loaded building's
     (rows, channels) int64 matrix would be half a gigabyte of fresh pages), dense rows and sparse rows alike,
-    and rebuilds the same memory."""
+    channels stored as rows at the same voxels together, and rebuilds the same memory."""
     from panovocc_cli.io.mapstore import SparseRows
     from panovocc_cli.mapping import memory
 
@@ -242,14 +242,19 @@ def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
     want = m.to_arrays()
     sizes = []
     real = VoxelMemory.add
-    monkeypatch.setattr(VoxelMemory, "add", lambda self, d, sign=1: (sizes.append(len(d)), real(self, d, sign))[1])
+    together = []
+    monkeypatch.setattr(VoxelMemory, "add", lambda self, d, sign=1: (sizes.append(len(d)), together.append(
+        sorted(d.channels)), real(self, d, sign))[2])
     monkeypatch.setattr(memory, "LOAD_CHUNK", 64)
     for arrays in (want, m.to_arrays(sparse=True)):
         sizes.clear()
+        together.clear()
         back = VoxelMemory.from_arrays(arrays).to_arrays()
         assert max(sizes) <= 64 and sum(sizes) >= len(want["keys"])
         for key, value in want.items():
             np.testing.assert_array_equal(back[key], value.dense() if isinstance(value, SparseRows) else value)
+    # from rows (the second form): the semantic channels at the same voxels are added together, one pass
+    assert any({"E", "count"} <= set(names) for names in together)
 
 
 def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
