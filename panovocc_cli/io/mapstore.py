@@ -149,18 +149,25 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
             _put_values(arrays, prefix, name, _compact(arr))
 
 
-GCD_ROWS = 1 << 18
-"""Rows whose common divisor is taken at a time (:func:`_gcd_of`: no int64 copy of a whole channel)."""
+_GCD_BLOCK = 1 << 12  # values in the first block common_divisor reads (then 4x more each block, up to _GCD_MAX)
+_GCD_MAX = 1 << 22  # values a block holds at most (no int64 copy of a whole large channel)
 
 
-def _gcd_of(a: np.ndarray) -> int:
-    """The greatest common divisor of all of ``a``'s values (0 when empty or all zero), a block of rows at a
-    time: the gcd of the blocks' gcds is the whole array's."""
-    g = 0
-    for r in range(0, len(a), GCD_ROWS):
-        g = int(np.gcd(g, int(np.gcd.reduce(np.abs(a[r:r + GCD_ROWS].astype(np.int64)), axis=None))))
-        if g == 1:
-            break
+def _gcd_reduce(a: np.ndarray):
+    return np.gcd.reduce(a)
+
+
+def common_divisor(a: np.ndarray) -> int:
+    """The greatest common divisor of the values of the integer array ``a`` (any shape; 0 when it has no
+    value other than 0): ``np.gcd.reduce(np.abs(a.astype(np.int64)), axis=None)``, read block by block
+    (growing) and stopped once it is 1, which the first block of most channels settles (a memory
+    channel's 16.7 M values cost ~0.15-0.5 s CPU in one reduction)."""
+    flat = np.asarray(a).reshape(-1)
+    g, start, step = 0, 0, _GCD_BLOCK
+    while start < flat.size and g != 1:
+        g = int(np.gcd(g, _gcd_reduce(np.abs(flat[start:start + step].astype(np.int64)))))
+        start += step
+        step = min(4 * step, _GCD_MAX)
     return g
 
 
@@ -168,7 +175,7 @@ def _put_values(arrays: dict, prefix: str, name: str, a: np.ndarray) -> None:
     """A channel's kept rows ``a`` (m, width): as byte planes, or, when wide and mostly zeros, as its
     non-zero entries and their bit mask; values with a common divisor g > 1 as the quotients and g
     (``{prefix}gcd_NAME``) (:func:`_encode_channels`)."""
-    g = _gcd_of(a)
+    g = common_divisor(a)
     if g > 1:
         arrays[f"{prefix}gcd_{name}"] = np.array([g], np.int64)
         a = _compact(a // a.dtype.type(g))  # exact: g divides every value (in a's own type: no int64 copy)

@@ -310,18 +310,19 @@ class Mapper:
         (unless the folder's config already holds this mapper's parameters, e.g. a map run's; a config.json
         that cannot be read or holds other parameters is refused before anything is written) and
         ``poses.txt`` (the kept frames' poses in id order). Deltas kept in RAM move to ``folder``.
-        ``background=True``: ``memory.npz`` (of the memory as it is at the call) is written on the delta
-        writer thread while the caller goes on (the map command's checkpoints); it is on disk once
-        :meth:`close` returns, which re-raises a failed write.
+        ``background=True``: ``memory.npz`` (of the memory as it is at the call), the commit and then
+        ``poses.txt`` are written on the delta writer thread while the caller goes on (``map`` writes its
+        grid and PLY meanwhile); they are on disk once :meth:`close` returns, which re-raises
+        a failed write (poses.txt is then left as it was).
         """
         folder = Path(folder) if folder is not None else self.folder
         if folder is None:
             raise PanovoccError("Mapper.save needs a folder (this mapper keeps its deltas in RAM)")
         write_config = not self._holds_my_config(folder)  # refuses before anything is written
-        self._rpu.save(folder, background)
+        poses = self._rpu.poses()[1]
+        self._rpu.save(folder, background, after=lambda: write_poses(folder / "poses.txt", poses))
         if write_config:
             mapstore.write_map_config(folder, self.config.to_json())
-        write_poses(folder / "poses.txt", self._rpu.poses()[1])
         return folder
 
     def _holds_my_config(self, folder: Path) -> bool:

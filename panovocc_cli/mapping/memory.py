@@ -48,6 +48,8 @@ GEOMETRY_NAMES = ("A", "N", "F", "O")  # the dense group: kept for every voxel o
 RESERVE_BLOCKS = 1 << 20  # blocks (512 M voxels) reserved up front where untouched pages cost nothing
 RESERVE_ROWS = 1 << 26  # sparse-group rows reserved likewise
 FALLBACK_BLOCKS = 1 << 10  # initial blocks where nothing can be reserved (then doubled by copying)
+LOAD_CHUNK = 1 << 18  # rows a memory file is added in at a time (from_arrays): a few MB of (rows, channels)
+#                       int64, reused from the heap, instead of one matrix of every voxel (0.5 GB for a building)
 _MAP_NORESERVE = 0x4000  # Linux mmap flag: no swap reservation for the mapping (mmap lacks the name)
 _I32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
 _I64 = (int(np.iinfo(np.int64).min), int(np.iinfo(np.int64).max))
@@ -340,6 +342,38 @@ def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n
 
 
 @nb.njit(cache=True)
+def _difference(ka, va, kb, vb):
+    """``vb - va`` over the union of sorted unique keys ``ka`` (na,) and ``kb`` (nb,) (values (n, m) int64, a
+    row absent from one side counting as zeros): (ok, keys (n,), values (n, m)); ok False when a difference
+    would pass int64 (nothing is wrapped: the caller then subtracts and adds apart)."""
+    na, nb_, m = ka.shape[0], kb.shape[0], va.shape[1]
+    i = j = n = 0
+    while i < na and j < nb_:
+        a, b = ka[i], kb[j]
+        i += a <= b
+        j += b <= a
+        n += 1
+    n += na - i + nb_ - j
+    keys = np.empty(n, np.int64)
+    vals = np.empty((n, m), np.int64)
+    lo, hi = np.iinfo(np.int64).min, np.iinfo(np.int64).max
+    i = j = 0
+    for r in range(n):
+        take_a = j >= nb_ or (i < na and ka[i] <= kb[j])
+        take_b = i >= na or (j < nb_ and kb[j] <= ka[i])
+        for c in range(m):
+            a = va[i, c] if take_a else 0
+            b = vb[j, c] if take_b else 0
+            if (a < 0 and b > hi + a) or (a > 0 and b < lo + a):
+                return False, keys[:0], vals[:0]
+            vals[r, c] = b - a
+        keys[r] = ka[i] if take_a else kb[j]
+        i += take_a
+        j += take_b
+    return True, keys, vals
+
+
+@nb.njit(cache=True)
 def _rehash(block_keys, n_blocks, cap):
     tk = np.full(cap, -1, np.int64)
     ts = np.zeros(cap, np.int64)
@@ -449,6 +483,21 @@ class NonzeroChannels(Mapping):
         """Channels (all, or ``names``) at positions ``pos`` (m,) of the key order."""
         names = list(self) if names is None else list(names)
         return self._memory._channels_at(self._loc[np.asarray(pos, np.int64)], names)
+
+
+def _same_rows(channels: Mapping) -> list:
+    """Names of channels stored as rows (``io.mapstore.SparseRows``), grouped by equal row positions (a
+    memory file's semantic channels mostly share theirs), each group in the order given."""
+    groups: list = []
+    for name, v in channels.items():
+        for g in groups:
+            r = channels[g[0]].rows
+            if len(r) == len(v.rows) and np.array_equal(r, v.rows):
+                g.append(name)
+                break
+        else:
+            groups.append([name])
+    return groups
 
 
 class VoxelMemory:
@@ -564,6 +613,41 @@ class VoxelMemory:
                 if has_dense:
                     self._add_group("dense", keys, vals, dcols, -sign)
                 self._refuse("sparse", keys[stop])
+
+    def replace(self, old: "Delta | FrameDelta", new: "Delta | FrameDelta") -> None:
+        """Subtract ``old`` and add ``new`` (a revised frame's kept and recomputed deltas): the memory that
+        ``add(old, -1)`` then ``add(new, +1)`` gives, bit for bit, with the same blocks and rows allocated,
+        in one pass over the union of their keys for each part (a frame moved by a pose correction keeps
+        most of its voxels, so the union is about one delta, not two). Parts of ``new`` whose channels no
+        part of ``old`` has, or a difference past int64, take the two passes. A refused sum leaves the
+        memory as it was (:class:`PanovoccError`)."""
+        olds = list(old.parts) if isinstance(old, FrameDelta) else [old]
+        news = list(new.parts) if isinstance(new, FrameDelta) else [new]
+        olds = [p for p in olds if len(p) and p.channels]
+        news = [p for p in news if len(p) and p.channels]
+        diffs = []
+        for n in news:
+            names = sorted(n.channels)
+            o = next((o for o in olds if sorted(o.channels) == names
+                      and all(o.channels[k].shape[1] == n.channels[k].shape[1] for k in names)), None)
+            if o is None:
+                break
+            va = np.concatenate([o.channels[k] for k in names], axis=1)
+            vb = np.concatenate([n.channels[k] for k in names], axis=1)
+            ok, keys, vals = _difference(o.keys, va, n.keys, vb)
+            if not ok:
+                break
+            widths = np.cumsum([0] + [n.channels[k].shape[1] for k in names])
+            diffs.append(Delta(keys, {k: vals[:, widths[c]:widths[c + 1]] for c, k in enumerate(names)}))
+        if len(diffs) == len(news) == len(olds):
+            self.add(FrameDelta(tuple(diffs)))
+            return
+        self.add(FrameDelta(tuple(olds)), -1)
+        try:
+            self.add(FrameDelta(tuple(news)), +1)
+        except PanovoccError:
+            self.add(FrameDelta(tuple(olds)), +1)
+            raise
 
     def _add_group(self, group: str, keys, vals, cols, sign) -> int | None:
         """Scatter-add one group's columns; growing and widening as needed. Returns None when done, or the
@@ -746,11 +830,13 @@ class VoxelMemory:
             for group in (True, False):  # the geometry, then the rest: rows only where a value is non-zero
                 ch = {s.name: z[f"ch_{s.name}"] for s in specs if (s.name in GEOMETRY_NAMES) == group}
                 full = {k: v for k, v in ch.items() if not hasattr(v, "rows")}
-                if full:
-                    mem.add(Delta(keys, full))
-                for name, v in ch.items():
-                    if hasattr(v, "rows"):  # io.mapstore.SparseRows: its rows only
-                        mem.add(Delta(keys[v.rows], {name: v.values}))
+                for a in range(0, len(keys) if full else 0, LOAD_CHUNK):  # LOAD_CHUNK rows at a time
+                    mem.add(Delta(keys[a:a + LOAD_CHUNK], {k: v[a:a + LOAD_CHUNK] for k, v in full.items()}))
+                for names in _same_rows({k: v for k, v in ch.items() if hasattr(v, "rows")}):
+                    rows_all = ch[names[0]].rows  # io.mapstore.SparseRows: their rows only, in one pass
+                    for a in range(0, len(rows_all), LOAD_CHUNK):
+                        mem.add(Delta(keys[rows_all[a:a + LOAD_CHUNK]],
+                                      {k: ch[k].values[a:a + LOAD_CHUNK] for k in names}))
         except KeyError as e:
             raise PanovoccError(f"memory file lacks {e}", where) from None
         return mem

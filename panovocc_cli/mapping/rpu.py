@@ -149,11 +149,15 @@ class DeltaStore:
         return sorted(self.poses)
 
     def get(self, frame_id: int) -> FrameDelta:
-        """The kept delta of ``frame_id`` (int64 channels)."""
+        """The kept delta of ``frame_id`` (int64 channels). Waits for the writer thread only when this
+        frame's record is the one being written: any other kept record is on disk already, so a revision
+        reads and decodes the next frame's old delta while the last one's record is compressed (a failed
+        write is reported by the next change, :meth:`ReversibleMemory._flush`)."""
         fid = int(frame_id)
         if fid not in self.poses:
             raise PanovoccError(f"frame {fid} is not in the map")
-        self.flush()
+        if self._inflight is not None and self._inflight[0] == fid:
+            self.flush()
         if self.folder is None:
             parts, obs = self._ram[fid]
             return FrameDelta(tuple(Delta(keys, {k: v.astype(np.int64) for k, v in ch.items()})
@@ -245,15 +249,18 @@ class DeltaStore:
                 self._writer = None
 
     # -- persistence -----------------------------------------------------------------------------
-    def commit(self, background: bool = False, before=None) -> None:
+    def commit(self, background: bool = False, before=None, after=None) -> None:
         """A checkpoint: every kept delta on disk, ``before()`` (if given: the snapshot files of a save),
-        then a journal entry (fsync'd); on the writer thread with ``background``."""
+        then a journal entry (fsync'd), then ``after()`` (if given: what must follow the commit, a save's
+        poses.txt); on the writer thread with ``background``."""
         self.flush()
 
         def finish():
             if before is not None:
                 before()
             self._log.commit(compact=before is not None)
+            if after is not None:
+                after()
 
         if background:
             self._submit(finish)
@@ -365,8 +372,7 @@ class ReversibleMemory:
         if old is None:
             old = self.store.get(frame_id)
         delta = _as_frame_delta(delta)
-        self.memory.add(old, -1)
-        self.memory.add(delta, +1)
+        self.memory.replace(old, delta)  # one pass over the union of their voxels
         self.store.put(frame_id, delta, T_world_cam, old=old)
 
     def remove(self, frame_id: int) -> None:
@@ -389,13 +395,13 @@ class ReversibleMemory:
             raise PanovoccError("a checkpoint needs a folder (this memory keeps its deltas in RAM)")
         self.store.commit(background)
 
-    def save(self, folder: str | Path, background: bool = False) -> None:
+    def save(self, folder: str | Path, background: bool = False, after=None) -> None:
         """Persist into ``folder``: every kept delta and a COMMIT, then the memory snapshot ``memory.npz``
-        and ``deltas/snapshot.npz``.
+        and ``deltas/snapshot.npz``; then ``after()`` (if given), once the commit is made.
 
         ``memory.npz`` lists the kept frames' poses in id order; their ids are stored too unless they are
-        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the snapshot and the
-        commit are written on the writer thread from the memory as it is now."""
+        ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the snapshot, the
+        commit and ``after`` run on the writer thread from the memory as it is now."""
         self._flush()
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -414,7 +420,7 @@ class ReversibleMemory:
 
             write_npz(folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
 
-        store.commit(background, before=write)
+        store.commit(background, before=write, after=after)
 
     def rollback(self) -> None:
         """After a failed command: cut the uncommitted records (the memory object is not usable after)."""

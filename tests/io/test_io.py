@@ -298,3 +298,23 @@ def test_read_first_pose_refuses(tmp_path, content, match):
     assert str(p) in str(e.value) and "\n" not in str(e.value)
     with pytest.raises(PanovoccError, match="not found"):
         read_first_pose(tmp_path / "missing.txt")
+
+
+def test_common_divisor_of_a_channel_stops_reading_once_it_is_one(monkeypatch):
+    """The common divisor a channel is stored divided by (``mapstore.common_divisor``) equals numpy's
+    gcd over every value, and is found from the first rows when they already have none (a memory's
+    channel of 16.7 M rows: one block, not the whole array)."""
+    from panovocc_cli.io import mapstore
+
+    rng = np.random.default_rng(4)
+    cases = [np.zeros((0, 3), np.int32), np.zeros((7, 1), np.int16), 6 * rng.integers(-9, 9, (5000, 3)),
+             np.concatenate([64 * rng.integers(1, 9, (300000, 1)), [[32]], [[-48]]]).astype(np.int32),
+             rng.integers(-2 ** 40, 2 ** 40, (20000, 2)), np.array([[np.iinfo(np.int32).min], [4]], np.int32)]
+    for a in cases:
+        want = int(np.gcd.reduce(np.abs(a.astype(np.int64)), axis=None)) if a.size else 0
+        assert mapstore.common_divisor(a) == want
+    seen = []
+    real = np.gcd.reduce
+    monkeypatch.setattr(mapstore, "_gcd_reduce", lambda b: (seen.append(b.size), real(b))[1])
+    assert mapstore.common_divisor(rng.integers(0, 1000, (1_000_000, 4))) == 1
+    assert sum(seen) < 100_000

@@ -536,3 +536,31 @@ def test_poses_that_are_not_rigid_are_refused_naming_the_frame(mapped):
     after = _arrays(m)
     assert all(np.array_equal(before[k], after[k]) for k in before)
     assert m.integrate(dataclasses.replace(f, T_world_cam=f.T_world_cam + 1e-9)) == 1  # within the tolerance
+
+
+def test_a_background_save_writes_poses_only_after_its_commit(mapped, tmp_path, monkeypatch):
+    """``save(background=True)`` (what ``revise`` overlaps with the export) writes poses.txt after the
+    memory's commit: a memory write that fails leaves poses.txt, memory.npz and the committed map as they
+    were, and the error comes out of ``close``."""
+    _, cfg, frames = mapped
+    folder = tmp_path / "m"
+    m = Mapper(cfg.mapper_config(), folder=folder, frame_source=frames)
+    for i in range(3):
+        m.integrate(frames(i))
+    m.save()
+    before = {n: (folder / n).read_bytes() for n in ("poses.txt", "memory.npz")}
+    old_T = m.pose(1)
+    m.revise(1, _moved(old_T, 4))
+
+    def disk_full(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(mapstore, "write_memory", disk_full)
+    m.save(background=True)
+    with pytest.raises(OSError, match="No space"):
+        m.close()
+    m._rpu.rollback()
+    assert {n: (folder / n).read_bytes() for n in before} == before
+    back = Mapper.load(folder)
+    assert np.array_equal(back.pose(1), old_T)
+    back.close()

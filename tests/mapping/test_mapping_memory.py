@@ -224,3 +224,104 @@ def test_memory_file_from_sparse_rows_has_the_same_bytes(tmp_path):
         back = VoxelMemory.from_arrays(arrays).to_arrays()
         for key, want in m.to_arrays().items():
             np.testing.assert_array_equal(back[key], want)
+
+
+def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
+    """``from_arrays`` adds a memory file's voxels ``LOAD_CHUNK`` rows at a time (a loaded building's
+    (rows, channels) int64 matrix would be half a gigabyte of fresh pages), dense rows and sparse rows alike,
+    channels stored as rows at the same voxels together, and rebuilds the same memory."""
+    from panovocc_cli.io.mapstore import SparseRows
+    from panovocc_cli.mapping import memory
+
+    rng = np.random.default_rng(11)
+    geo = _random_delta(rng, n=3000, span=40)
+    m = VoxelMemory(0.08, _semantic_specs(3))
+    sk = geo.keys[::5]
+    m.add(Delta(sk, {"E": rng.integers(0, 4, (len(sk), 3)), "count": np.ones((len(sk), 1), np.int64)}))
+    m.add(geo)
+    want = m.to_arrays()
+    sizes = []
+    real = VoxelMemory.add
+    together = []
+    monkeypatch.setattr(VoxelMemory, "add", lambda self, d, sign=1: (sizes.append(len(d)), together.append(
+        sorted(d.channels)), real(self, d, sign))[2])
+    monkeypatch.setattr(memory, "LOAD_CHUNK", 64)
+    for arrays in (want, m.to_arrays(sparse=True)):
+        sizes.clear()
+        together.clear()
+        back = VoxelMemory.from_arrays(arrays).to_arrays()
+        assert max(sizes) <= 64 and sum(sizes) >= len(want["keys"])
+        for key, value in want.items():
+            np.testing.assert_array_equal(back[key], value.dense() if isinstance(value, SparseRows) else value)
+    # from rows (the second form): the semantic channels at the same voxels are added together, one pass
+    assert any({"E", "count"} <= set(names) for names in together)
+
+
+def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
+    """``replace(old, new)`` (a revision's swap of a frame's delta) gives the memory ``add(old, -1)`` then
+    ``add(new, +1)`` gives, bit for bit and with the same allocated blocks and rows, adding each part once
+    over the union of its keys; parts of different channels, and differences past int64, take the two
+    passes."""
+    rng = np.random.default_rng(12)
+    specs = _semantic_specs(3)
+
+    def frame():
+        geo = _random_delta(rng, n=4000, span=30)
+        sk = geo.keys[::7]
+        sem = Delta(sk, {"E": rng.integers(0, 5, (len(sk), 3)), "S": rng.integers(0, 9, (len(sk), 1)),
+                         "count": np.ones((len(sk), 1), np.int64)})
+        return FrameDelta((geo, sem))
+
+    kept, old, new = frame(), frame(), frame()
+    cases = [(old, new), (old, FrameDelta(new.parts[:1])), (FrameDelta(old.parts[1:]), new)]
+    big = Delta(old.parts[0].keys[:3], {c: np.full((3, 1), 2 ** 62) for c in ("A", "N", "F", "O")})
+    cases.append((FrameDelta((Delta(big.keys, {c: -v for c, v in big.channels.items()}),)), FrameDelta((big,))))
+    for case, (o, n) in enumerate(cases):
+        want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
+        for m in (want, got):
+            m.add(kept)
+            m.add(o)
+        want.add(o, -1)
+        want.add(n, +1)
+        passes = []
+        real = VoxelMemory._add_group
+        monkeypatch.setattr(VoxelMemory, "_add_group", lambda self, g, k, *a: (passes.append((g, len(k))), real(self, g, k, *a))[1])
+        got.replace(o, n)
+        monkeypatch.setattr(VoxelMemory, "_add_group", real)
+        if case == 0:
+            assert [g for g, _ in passes] == ["dense", "sparse"], passes  # one pass a group
+        a, b = want.to_arrays(), got.to_arrays()
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+        assert (want.n_blocks, want.n_pages, want.n_rows) == (got.n_blocks, got.n_pages, got.n_rows)
+
+
+def test_reading_a_kept_delta_waits_only_for_its_own_pending_write(tmp_path, monkeypatch):
+    """``DeltaStore.get`` of a frame whose record is not the one being written does not wait for the writer
+    thread (a revision reads the next frame's old delta while the last one's record is compressed); the
+    frame in flight waits and reads its new delta."""
+    import threading
+    import time
+
+    from panovocc_cli.io import mapstore
+    from panovocc_cli.mapping.rpu import DeltaStore
+
+    rng = np.random.default_rng(13)
+    d0, d1, d2 = (_random_delta(rng, n=500, span=20) for _ in range(3))
+    store = DeltaStore(tmp_path / "m")
+    store.put(0, d0, np.eye(4))
+    store.put(1, d1, np.eye(4))
+    store.flush()
+    release = threading.Event()
+    real = mapstore.DeltaLog.append
+    monkeypatch.setattr(mapstore.DeltaLog, "append", lambda self, *a: (release.wait(10), real(self, *a))[1])
+    store.put(1, d2, 2 * np.eye(4))  # its record waits on the writer thread
+    threading.Timer(1.5, release.set).start()
+    t0 = time.perf_counter()
+    got = store.get(0)
+    assert time.perf_counter() - t0 < 1.0
+    np.testing.assert_array_equal(got.parts[0].channels["F"], d0.channels["F"])
+    got = store.get(1)  # the frame in flight: after its write
+    assert time.perf_counter() - t0 >= 1.4
+    np.testing.assert_array_equal(got.parts[0].channels["F"], d2.channels["F"])
+    store.close()
