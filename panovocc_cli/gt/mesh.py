@@ -10,7 +10,6 @@ there: such voxels become 254 (occupied, no class). Every other voxel inside the
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 from numba import njit

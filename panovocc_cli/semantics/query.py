@@ -32,9 +32,7 @@ Pure maths except :func:`minilm_encoder` (loads the text model), :func:`open_map
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
