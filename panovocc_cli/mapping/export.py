@@ -228,12 +228,14 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     n = len(occupied_keys)
     if n == 0:
         return np.zeros(0, np.int64)
+    if not isinstance(channels, OccupiedChannels):  # a dict of the occupied rows
+        channels = OccupiedChannels(channels, np.arange(n))
     S = channels["S"][:, 0] / S_SCALE
     names = ("E", "normal_sum", "rgb_sum", "count")
     p = normals = colors = None
     for r in range(0, n, UNARY_CHUNK):  # row by row, so a block at a time gives the same values
         b = slice(r, r + UNARY_CHUNK)
-        c = channels.rows(b, names) if hasattr(channels, "rows") else {k: channels[k][b] for k in names}
+        c = channels.rows(b, names)
         u = unaries(c["E"] / S_SCALE, S[b], c["normal_sum"] / NORMAL_STEPS, c["rgb_sum"], c["count"][:, 0])
         if p is None:
             p, normals, colors = (np.empty((n,) + x.shape[1:], x.dtype) for x in u)

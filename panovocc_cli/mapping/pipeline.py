@@ -589,9 +589,11 @@ def run_revise(cfg: ReviseConfig | str | Path, poses_path: str | Path | None = N
 
     ``poses_path`` is a full pose file (one pose per frame), read as ``map --poses`` reads it
     (:func:`~panovocc_cli.io.poses.frame_poses`: NICE-SLAM line i is frame i, TUM timestamps matched to the
-    frame indices); the pose file the map was made with is not read. Order of writes (:mod:`.rpu`): new deltas to staging names, then memory.npz (the commit point, it
-    stores the poses), then the staged deltas renamed in place, then poses.txt, prediction.npz, map.ply.
-    A run killed after the commit is completed by the next ``revise`` (staged deltas are rolled forward).
+    frame indices); the pose file the map was made with is not read. Order of writes (:meth:`.rpu.
+    ReversibleMemory.save`): the revised frames' delta records appended to the log, then ``memory.npz`` and
+    the snapshot index, then the COMMIT record (the commit point), then poses.txt, prediction.npz, map.ply.
+    A run that fails or is killed before the commit leaves records the next opening cuts off: the map is as
+    it was.
     """
     if not isinstance(cfg, ReviseConfig):
         if poses_path is None:
