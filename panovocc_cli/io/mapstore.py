@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from .atomic import write_text
-from .npz import write_npz
+from .npz import StreamedArray, write_npz
 from .sequence import frame_stem
 
 CONFIG_NAME = "config.json"
@@ -275,22 +275,159 @@ def read_delta(path: str | Path) -> tuple[list, np.ndarray]:
     return parts, T
 
 
-def write_memory(folder: str | Path, arrays: Mapping[str, np.ndarray], frames_done: int, poses: np.ndarray,
+def _int_type(lo: int, hi: int) -> np.dtype:
+    """The type :func:`_compact` gives an array whose values span ``lo..hi`` (0 included: no array's type
+    depends on whether it holds a 0)."""
+    lo, hi = min(int(lo), 0), max(int(hi), 0)
+    for dt in (np.int8, np.int16, np.int32):
+        if np.iinfo(dt).min <= lo and hi <= np.iinfo(dt).max:
+            return np.dtype(dt)
+    return np.dtype(np.int64)
+
+
+def _nonzero_rows(v, start: int) -> tuple[np.ndarray, np.ndarray]:
+    """One chunk of a channel (rows ``start..``, (m, width), or :class:`SparseRows` over the whole order)
+    -> (positions of its non-zero rows in the whole order, their values)."""
+    if isinstance(v, SparseRows):
+        vals = np.asarray(v.values)
+        nz = vals.any(axis=1)
+        return np.asarray(v.rows, np.int64)[nz], vals[nz]
+    v = np.asarray(v)
+    nz = np.flatnonzero(v.any(axis=1))
+    return start + nz, v[nz]
+
+
+def _all_rows(v, start: int, m: int) -> np.ndarray:
+    """One chunk of a channel as its m rows (zeros where a :class:`SparseRows` has none)."""
+    if isinstance(v, SparseRows):
+        out = np.zeros((m, v.values.shape[1]), v.values.dtype)
+        out[np.asarray(v.rows, np.int64) - start] = v.values
+        return out
+    return np.asarray(v)
+
+
+class _StreamPlan(NamedTuple):
+    """How :func:`_encode_channels` stores one channel, found by one pass over the chunks."""
+
+    rows: bool  # stored as its non-zero rows (and their gaps ``rows_``)
+    m: int  # rows kept
+    width: int
+    g: int  # common divisor (> 1: the quotients are stored)
+    dtype: np.dtype  # of the stored values
+    mask: bool  # as its non-zero entries and their bit mask
+    k: int  # non-zero entries
+    gap_type: np.dtype
+
+
+def _stream_plans(source, n: int, widths: Mapping[str, int]) -> dict:
+    st = {name: [0, 0, 0, 0, 0, 0, 0] for name in widths}  # nz rows, lo, hi, gcd, entries, max gap, last row
+    for start, _, ch in source.chunks(list(widths)):
+        for name, s in st.items():
+            rows, vals = _nonzero_rows(ch[name], start)
+            if not len(rows):
+                continue
+            s[0] += len(rows)
+            s[1], s[2] = min(s[1], int(vals.min())), max(s[2], int(vals.max()))
+            if s[3] != 1:
+                s[3] = int(np.gcd(s[3], common_divisor(vals)))
+            s[4] += int(np.count_nonzero(vals))
+            s[5] = max(s[5], int(rows[0] - s[6]), int(np.diff(rows).max()) if len(rows) > 1 else 0)
+            s[6] = int(rows[-1])
+    plans = {}
+    for name, (nz, lo, hi, g, k, gap, _) in st.items():
+        rows = 2 * nz < n
+        m, w = (nz if rows else n), int(widths[name])
+        dtype = _int_type(lo // g, hi // g) if g > 1 else _int_type(lo, hi)
+        plans[name] = _StreamPlan(rows, m, w, g, dtype, w >= 4 and 3 * k < m * w, k, _int_type(0, gap))
+    return plans
+
+
+def _streamed_channels(out: dict, source, n: int, widths: Mapping[str, int]) -> None:
+    """:func:`_encode_channels` of ``source``'s channels (no factors) as :class:`~.npz.StreamedArray`
+    entries read chunk by chunk: the same entries, the same bytes, one chunk held at a time."""
+    for name, p in _stream_plans(source, n, widths).items():
+        def values(name=name, p=p):  # the stored values, chunk by chunk, in their stored type
+            for start, keys, ch in source.chunks([name]):
+                v = _nonzero_rows(ch[name], start)[1] if p.rows else _all_rows(ch[name], start, len(keys))
+                if p.g > 1:
+                    v = v // v.dtype.type(p.g)  # exact
+                v = v.astype(p.dtype)
+                yield v[v != 0] if p.mask else v
+
+        shape = (p.k, 1) if p.mask else (p.m, p.width)
+        if p.g > 1:
+            out[f"gcd_{name}"] = np.array([p.g], np.int64)
+        if p.mask:
+            out[f"nz_{name}"] = StreamedArray(np.uint8, ((p.m * p.width + 7) // 8,), lambda name=name, p=p: _packed(
+                source, name, p))
+            out[f"nzshape_{name}"] = np.array((p.m, p.width), np.int64)
+        if p.rows:
+            out[f"rows_{name}"] = StreamedArray(p.gap_type, (p.m,), lambda name=name, p=p: _gaps(source, name, p))
+        size = p.dtype.itemsize
+        if size == 1:
+            out[f"ch_{name}"] = StreamedArray(p.dtype, shape, values)
+        else:
+            le = p.dtype.newbyteorder("<")
+            out[f"ch_{name}"] = StreamedArray(np.uint8, (size, int(np.prod(shape))), lambda values=values, le=le, size=size: (
+                np.ascontiguousarray(v.astype(le).reshape(-1).view(np.uint8).reshape(-1, size)[:, b])
+                for b in range(size) for v in values()))  # byte plane b of every value (:func:`_shuffled`)
+            out[f"shape_{name}"] = np.array(shape, np.int64)
+
+
+def _gaps(source, name: str, p: _StreamPlan):
+    last = 0
+    for start, _, ch in source.chunks([name]):
+        rows = _nonzero_rows(ch[name], start)[0]
+        if len(rows):
+            yield np.diff(rows, prepend=np.int64(last)).astype(p.gap_type)
+            last = int(rows[-1])
+
+
+def _packed(source, name: str, p: _StreamPlan):
+    """``np.packbits`` of the kept rows' non-zero mask, chunk by chunk (the bits past a whole byte carried)."""
+    carry = np.zeros(0, np.bool_)
+    for start, keys, ch in source.chunks([name]):
+        v = _nonzero_rows(ch[name], start)[1] if p.rows else _all_rows(ch[name], start, len(keys))
+        bits = np.concatenate([carry, (v != 0).reshape(-1)])
+        whole = len(bits) // 8 * 8
+        yield np.packbits(bits[:whole])
+        carry = bits[whole:]
+    if len(carry):
+        yield np.packbits(carry)
+
+
+def _streamed_keys(source):
+    last = 0
+    for _, keys, _ in source.chunks():
+        if len(keys):
+            yield np.diff(keys, prepend=np.int64(last))
+            last = int(keys[-1])
+
+
+def write_memory(folder: str | Path, arrays, frames_done: int, poses: np.ndarray,
                  frame_ids: np.ndarray | None = None) -> None:
     """Atomically write ``folder/memory.npz``.
 
     Parameters
     ----------
-    arrays : the memory's canonical arrays (``VoxelMemory.to_arrays``)
+    arrays : the memory's canonical arrays (``VoxelMemory.to_arrays``), or the same read a key range at a
+        time (``VoxelMemory.chunked()``: ``header``, ``n``, ``chunks(names)``), written as a stream to the
+        same bytes without holding every voxel's keys and channels (docs/mapping.md, "Memory layout")
     frames_done : int, frames the memory holds (a map run's checkpoint: frames 0..frames_done-1)
     poses : (n, 4, 4) float64, the poses the retained deltas were computed under, in frame-id order
     frame_ids : (n,) int64 or None; stored only when the ids are not ``0..n-1`` (a mapper that removed
         frames or was fed its own ids), so a plain map run's file keeps its historical bytes
     """
-    out = {k: v for k, v in arrays.items() if not k.startswith("ch_")}
-    n = len(arrays["keys"])
-    _encode_channels(out, "", n, {k[3:]: v for k, v in arrays.items() if k.startswith("ch_")})
-    out["keys"] = np.diff(np.asarray(arrays["keys"], np.int64), prepend=np.int64(0))  # as differences
+    if hasattr(arrays, "chunks"):
+        out = dict(arrays.header)
+        widths = {str(k): int(w) for k, w in zip(out["channel_names"], out["channel_widths"])}
+        _streamed_channels(out, arrays, arrays.n, widths)
+        out["keys"] = StreamedArray(np.int64, (arrays.n,), lambda: _streamed_keys(arrays))  # as differences
+    else:
+        out = {k: v for k, v in arrays.items() if not k.startswith("ch_")}
+        n = len(arrays["keys"])
+        _encode_channels(out, "", n, {k[3:]: v for k, v in arrays.items() if k.startswith("ch_")})
+        out["keys"] = np.diff(np.asarray(arrays["keys"], np.int64), prepend=np.int64(0))  # as differences
     out["keys_are_diffs"] = np.int64(1)
     out["frames_done"] = np.int64(frames_done)
     out["poses"] = np.asarray(poses, np.float64).reshape(-1, 4, 4)

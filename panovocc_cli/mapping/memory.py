@@ -415,6 +415,57 @@ def _sparse_at(page_of, pages, rows, loc, out):
                         out[n, c] = rows[r - 1, c]
 
 
+@nb.njit(cache=True, inline="always")
+def _voxel_nonzero(geo, s, o, p, pages, rows):
+    """Whether voxel ``o`` of block slot ``s`` (its page ``p``, 0: none) has a non-zero channel."""
+    for c in range(geo.shape[2]):
+        if geo[s, o, c] != 0:
+            return True
+    if p > 0:
+        r = pages[p - 1, o]
+        if r > 0:
+            for c in range(rows.shape[1]):
+                if rows[r - 1, c] != 0:
+                    return True
+    return False
+
+
+@nb.njit(cache=True)
+def _ordered_nonzero(slots, bx, by, block_keys, geo, page_of, pages, rows, has_sparse, b0, b1, dx0, dx1, write,
+                     keys, loc):
+    """The voxels with a non-zero channel, in key order, of the blocks ``slots[b0:b1]`` (sorted by block key,
+    whole x-slabs of blocks: block coordinates ``bx`` equal within one), at x offsets ``dx0 <= dx < dx1``
+    in their block: their keys and locations (slot * 512 + offset) into ``keys``/``loc`` when ``write``;
+    returns their count. Keys sort x-major, then y, then z, so a slab's voxels come x offset by x offset,
+    each as its rows of blocks (equal ``by``) y offset by y offset, block after block (ascending z)."""
+    cnt = 0
+    a = b0
+    while a < b1:
+        e = a
+        while e < b1 and bx[e] == bx[a]:
+            e += 1
+        for dx in range(dx0, dx1):
+            j = a
+            while j < e:
+                k = j
+                while k < e and by[k] == by[j]:
+                    k += 1
+                for dy in range(8):
+                    for m in range(j, k):
+                        s = slots[m]
+                        p = page_of[s] if has_sparse else 0
+                        for dz in range(8):
+                            o = (dx << 6) | (dy << 3) | dz
+                            if _voxel_nonzero(geo, s, o, p, pages, rows):
+                                if write:
+                                    keys[cnt] = _voxel_key(block_keys[s], o)
+                                    loc[cnt] = s * 512 + o
+                                cnt += 1
+                j = k
+        a = e
+    return cnt
+
+
 @nb.njit(cache=True)
 def _nonzero_voxels(block_keys, n_blocks, geo, page_of, pages, rows, has_sparse):
     """Keys (unsorted) and locations (slot * 512 + offset) of every voxel with a non-zero channel."""
@@ -427,19 +478,7 @@ def _nonzero_voxels(block_keys, n_blocks, geo, page_of, pages, rows, has_sparse)
         for s in range(n_blocks):
             p = page_of[s] if has_sparse else 0
             for o in range(512):
-                nz = False
-                for c in range(geo.shape[2]):
-                    if geo[s, o, c] != 0:
-                        nz = True
-                        break
-                if not nz and p > 0:
-                    r = pages[p - 1, o]
-                    if r > 0:
-                        for c in range(rows.shape[1]):
-                            if rows[r - 1, c] != 0:
-                                nz = True
-                                break
-                if nz:
+                if _voxel_nonzero(geo, s, o, p, pages, rows):
                     if pass_ == 1:
                         keys[cnt] = _voxel_key(block_keys[s], o)
                         loc[cnt] = s * 512 + o
@@ -483,6 +522,83 @@ class NonzeroChannels(Mapping):
         """Channels (all, or ``names``) at positions ``pos`` (m,) of the key order."""
         names = list(self) if names is None else list(names)
         return self._memory._channels_at(self._loc[np.asarray(pos, np.int64)], names)
+
+
+SAVE_CHUNK = 1 << 18  # allocated voxels a streamed save (MemoryChunks) reads at a time
+
+
+class MemoryChunks:
+    """A memory's canonical arrays (:meth:`VoxelMemory.to_arrays` with ``sparse=True``) read a key range at
+    a time, for a ``memory.npz`` written as a stream (:func:`panovocc_cli.io.mapstore.write_memory`): no
+    array of every non-zero voxel is made. A chunk is whole x-slabs of blocks (their voxels in key order
+    without a sort: :func:`_ordered_nonzero`) of about ``chunk`` allocated voxels; a slab larger than that
+    is read a few x offsets at a time. The memory must not change while it is read.
+
+    Attributes: ``header`` (the small arrays of ``to_arrays``: voxel size, channel names, widths, kinds,
+    fixed scale), ``n`` (non-zero voxels), ``names`` (channel names in order).
+    """
+
+    def __init__(self, memory: "VoxelMemory", chunk: int | None = None):
+        chunk = SAVE_CHUNK if chunk is None else int(chunk)
+        self._memory = memory
+        self.header = memory._header()
+        self.names = tuple(s.name for s in memory.specs)
+        bkeys = memory._block_keys[:memory.n_blocks]
+        self._slots = np.argsort(bkeys, kind="stable").astype(np.int64)
+        bx, by, _ = unpack_index(bkeys[self._slots])
+        self._bx, self._by = np.ascontiguousarray(bx, np.int64), np.ascontiguousarray(by, np.int64)
+        cuts = np.flatnonzero(bx[1:] != bx[:-1]) + 1
+        per = max(chunk // BLOCK_VOXELS, 1)  # blocks a chunk of whole slabs holds at most
+        plan, group = [], None
+        for a, e in zip(np.r_[0, cuts].astype(int), np.r_[cuts, len(bx)].astype(int)):
+            if len(bx) == 0:
+                break
+            if group is not None and (e - a > per or e - group[0] > per):
+                plan.append((group[0], group[1], 0, BLOCK))
+                group = None
+            if e - a > per:  # one slab over the chunk: a few x offsets of it at a time
+                step = int(min(max(chunk // ((e - a) * BLOCK * BLOCK), 1), BLOCK))
+                plan += [(a, e, dx, min(dx + step, BLOCK)) for dx in range(0, BLOCK, step)]
+            else:
+                group = (a if group is None else group[0], e)
+        if group is not None:
+            plan.append((group[0], group[1], 0, BLOCK))
+        self._plan, start = [], 0
+        for c in plan:
+            cnt = self._scan(c, None)
+            self._plan.append((c, start, cnt))
+            start += cnt
+        self.n = start
+
+    def _scan(self, c, keys):
+        m = self._memory
+        out = np.zeros(0, np.int64) if keys is None else keys
+        loc = np.zeros(0, np.int64) if keys is None else np.empty(len(keys), np.int64)
+        cnt = _ordered_nonzero(self._slots, self._bx, self._by, m._block_keys, m._geo, m._page_of, m._pages, m._rows,
+                               bool(m.sparse_width), c[0], c[1], c[2], c[3], keys is not None, out, loc)
+        return cnt if keys is None else loc
+
+    def chunks(self, names=()):
+        """Yield ``(start, keys, channels)`` chunk by chunk in key order: ``keys`` (m,) int64 the voxels
+        ``start .. start + m - 1`` of the key order; ``channels`` name -> (m, width) in the stored type
+        (the geometry) or a :class:`~panovocc_cli.io.mapstore.SparseRows` over the whole order (the sparse
+        group: the voxels that own a row), for ``names`` only."""
+        from ..io.mapstore import SparseRows
+
+        m = self._memory
+        dense = [s for s in names if s in GEOMETRY_NAMES]
+        rest = [s for s in names if s not in GEOMETRY_NAMES]
+        for c, start, cnt in self._plan:
+            keys = np.empty(cnt, np.int64)
+            loc = self._scan(c, keys)
+            out = m._channels_at(loc, dense, stored=True) if dense else {}
+            if rest:
+                has = np.zeros(cnt, np.bool_)
+                _has_row(m._page_of, m._pages, loc, has)
+                pos = np.flatnonzero(has)
+                at = m._channels_at(loc[pos], rest, stored=True)
+                out.update({k: SparseRows(start + pos, at[k], self.n) for k in rest})
+            yield start, keys, out
 
 
 def _same_rows(channels: Mapping) -> list:
@@ -810,8 +926,13 @@ class VoxelMemory:
             out[f"ch_{s.name}"] = got[s.name] if s.name in got else SparseRows(pos, at[s.name], len(keys))
         return out
 
-    def _header(self, keys) -> dict:
-        return {"keys": keys, "voxel_size": np.float64(self.voxel_size),
+    def chunked(self, chunk: int | None = None) -> MemoryChunks:
+        """The canonical arrays read a key range at a time (:class:`MemoryChunks`: what ``memory.npz`` is
+        streamed from, to the same bytes as :meth:`to_arrays`)."""
+        return MemoryChunks(self, chunk)
+
+    def _header(self, keys=None) -> dict:
+        return {**({} if keys is None else {"keys": keys}), "voxel_size": np.float64(self.voxel_size),
                 "channel_names": np.array([c.name for c in self.specs], dtype=np.str_),
                 "channel_widths": np.array([c.width for c in self.specs], dtype=np.int64),
                 "channel_kinds": np.array([c.kind for c in self.specs], dtype=np.str_),

@@ -409,7 +409,10 @@ class ReversibleMemory:
             self.store.move_to(folder)
         ids, poses = self.poses()
         plain = np.array_equal(ids, np.arange(len(ids)))
-        arrays = self.memory.to_arrays(sparse=True)  # now: the memory may change while a background write runs
+        # in the foreground, memory.npz is streamed from the memory a key range at a time (no copy of every
+        # voxel's keys and channels, docs/mapping.md "Memory layout"); in the background it is taken now, as
+        # whole arrays: the memory may change while the write runs. Both give the same bytes.
+        arrays = self.memory.to_arrays(sparse=True) if background else self.memory.chunked()
         store = self.store
 
         def write():  # before the commit: a failure here leaves the folder's committed state as it was

@@ -226,6 +226,65 @@ def test_memory_file_from_sparse_rows_has_the_same_bytes(tmp_path):
             np.testing.assert_array_equal(back[key], want)
 
 
+def _streamable_memory(rng, wide: bool):
+    """A memory with the cases the memory file's encoding tells apart: class distributions that are mostly
+    zeros (stored as entries and mask), a channel with a common divisor, channels on few rows (stored as
+    rows) and on most (stored whole), far-apart keys (a row gap past int16); ``wide``: geometry widened to
+    int64 (a sum past int32)."""
+    geo = _random_delta(rng, n=20000, span=50)
+    geo.channels["N"] = 4 * geo.channels["N"]  # a common divisor of 4
+    m = VoxelMemory(0.08, _semantic_specs(12))
+    far = np.unique(pack_keys(rng.integers(-900, 900, size=(300, 3))))
+    m.add(Delta(far, {"A": np.ones((len(far), 1), np.int64)}))
+    for step in (3, 17):
+        sk = geo.keys[::step]
+        e = np.zeros((len(sk), 12), np.int64)
+        e[np.arange(len(sk)), rng.integers(0, 12, len(sk))] = rng.integers(1, 90, len(sk))
+        m.add(Delta(sk, {"E": e, "count": np.ones((len(sk), 1), np.int64)}))
+    m.add(geo)
+    if wide:
+        m.add(Delta(geo.keys[:5], {"F": np.full((5, 1), 2 ** 33, np.int64)}))
+    return m
+
+
+@pytest.mark.parametrize("wide", [False, True])
+def test_memory_file_streamed_in_key_ranges_has_the_same_bytes(tmp_path, wide):
+    """memory.npz written as a stream (``VoxelMemory.chunked``: a few x-slabs of blocks at a time, a slab
+    larger than a chunk a few x offsets at a time) equals the file written from whole arrays, byte for
+    byte, whatever the chunk; every chunk holds at most the chunk's voxels when the slabs fit in it."""
+    from panovocc_cli.io import mapstore
+
+    rng = np.random.default_rng(21)
+    m = _streamable_memory(rng, wide)
+    assert (m._geo.dtype == np.int64) == wide
+    folders = {}
+    for name, arrays in (("whole", m.to_arrays(sparse=True)), ("stream", m.chunked()), ("slabs", m.chunked(4096)),
+                         ("offsets", m.chunked(512))):
+        folders[name] = tmp_path / name
+        folders[name].mkdir()
+        mapstore.write_memory(folders[name], arrays, 1, np.eye(4)[None])
+    want = (folders["whole"] / "memory.npz").read_bytes()
+    for name in ("stream", "slabs", "offsets"):
+        assert (folders[name] / "memory.npz").read_bytes() == want, name
+    with np.load(folders["whole"] / "memory.npz") as z:  # the encodings the test means to cover
+        assert {"nz_E", "gcd_N", "rows_E", "shape_A", "shape_E"} <= set(z.files)
+    sizes = [len(k) for _, k, _ in m.chunked(4096).chunks()]
+    assert len(sizes) > 10 and max(sizes) <= 4096 and sum(sizes) == len(m.to_arrays()["keys"])
+    keys = np.concatenate([k for _, k, _ in m.chunked(512).chunks()])
+    np.testing.assert_array_equal(keys, m.to_arrays()["keys"])
+
+
+def test_an_empty_memory_streams_to_the_same_file(tmp_path):
+    from panovocc_cli.io import mapstore
+
+    for specs in (memory.GEOMETRY_CHANNELS, _semantic_specs(3)):
+        m = VoxelMemory(0.08, specs)
+        for name, arrays in (("whole", m.to_arrays(sparse=True)), ("stream", m.chunked())):
+            (tmp_path / name).mkdir(exist_ok=True)
+            mapstore.write_memory(tmp_path / name, arrays, 0, np.zeros((0, 4, 4)))
+        assert (tmp_path / "whole" / "memory.npz").read_bytes() == (tmp_path / "stream" / "memory.npz").read_bytes()
+
+
 def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
     """``from_arrays`` adds a memory file's voxels ``LOAD_CHUNK`` rows at a time (a loaded building's
     (rows, channels) int64 matrix would be half a gigabyte of fresh pages), dense rows and sparse rows alike,
