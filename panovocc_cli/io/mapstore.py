@@ -367,11 +367,27 @@ def _streamed_channels(out: dict, source, n: int, widths: Mapping[str, int]) -> 
         if size == 1:
             out[f"ch_{name}"] = StreamedArray(p.dtype, shape, values)
         else:
-            le = p.dtype.newbyteorder("<")
-            out[f"ch_{name}"] = StreamedArray(np.uint8, (size, int(np.prod(shape))), lambda values=values, le=le, size=size: (
-                np.ascontiguousarray(v.astype(le).reshape(-1).view(np.uint8).reshape(-1, size)[:, b])
-                for b in range(size) for v in values()))  # byte plane b of every value (:func:`_shuffled`)
+            total = int(np.prod(shape))
+            out[f"ch_{name}"] = StreamedArray(np.uint8, (size, total), lambda values=values, p=p, total=total: _planes(
+                values, p.dtype, total))
             out[f"shape_{name}"] = np.array(shape, np.int64)
+
+
+def _planes(values, dtype: np.dtype, total: int, piece: int = 1 << 22):
+    """The byte planes of :func:`_shuffled` (byte b of every value, b = 0, 1, ...) of the ``total`` values
+    ``values()`` yields: the channel is gathered once in its stored type (one channel, not every channel in
+    int64; reading the memory again for each plane cost more than the encoding), then given a piece of a
+    plane at a time."""
+    size = dtype.itemsize
+    whole, at = np.empty(total, dtype.newbyteorder("<")), 0
+    for v in values():
+        v = v.reshape(-1)
+        whole[at:at + len(v)] = v
+        at += len(v)
+    planes = whole.view(np.uint8).reshape(-1, size)
+    for b in range(size):
+        for a in range(0, total, piece):
+            yield np.ascontiguousarray(planes[a:a + piece, b])
 
 
 def _gaps(source, name: str, p: _StreamPlan):

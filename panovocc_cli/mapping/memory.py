@@ -431,12 +431,11 @@ def _voxel_nonzero(geo, s, o, p, pages, rows):
 
 
 @nb.njit(cache=True)
-def _ordered_nonzero(slots, bx, by, block_keys, geo, page_of, pages, rows, has_sparse, b0, b1, dx0, dx1, write,
-                     keys, loc):
+def _ordered_nonzero(slots, bx, by, geo, page_of, pages, rows, has_sparse, b0, b1, dx0, dx1, loc):
     """The voxels with a non-zero channel, in key order, of the blocks ``slots[b0:b1]`` (sorted by block key,
     whole x-slabs of blocks: block coordinates ``bx`` equal within one), at x offsets ``dx0 <= dx < dx1``
-    in their block: their keys and locations (slot * 512 + offset) into ``keys``/``loc`` when ``write``;
-    returns their count. Keys sort x-major, then y, then z, so a slab's voxels come x offset by x offset,
+    in their block: their locations (slot * 512 + offset) into ``loc``; returns their count (:func:`_keys_at`
+    gives their keys). Keys sort x-major, then y, then z, so a slab's voxels come x offset by x offset,
     each as its rows of blocks (equal ``by``) y offset by y offset, block after block (ascending z)."""
     cnt = 0
     a = b0
@@ -457,13 +456,18 @@ def _ordered_nonzero(slots, bx, by, block_keys, geo, page_of, pages, rows, has_s
                         for dz in range(8):
                             o = (dx << 6) | (dy << 3) | dz
                             if _voxel_nonzero(geo, s, o, p, pages, rows):
-                                if write:
-                                    keys[cnt] = _voxel_key(block_keys[s], o)
-                                    loc[cnt] = s * 512 + o
+                                loc[cnt] = s * 512 + o
                                 cnt += 1
                 j = k
         a = e
     return cnt
+
+
+@nb.njit(cache=True)
+def _keys_at(block_keys, loc, out):
+    """out[n] = the key of the voxel at location loc[n] (slot * 512 + offset)."""
+    for n in range(loc.shape[0]):
+        out[n] = _voxel_key(block_keys[loc[n] >> 9], loc[n] & 511)
 
 
 @nb.njit(cache=True)
@@ -563,20 +567,18 @@ class MemoryChunks:
                 group = (a if group is None else group[0], e)
         if group is not None:
             plan.append((group[0], group[1], 0, BLOCK))
+        # one scan: each chunk's voxel locations, kept in 4 bytes a voxel (the passes of a save read them
+        # again and again: a scan of every allocated voxel each time cost more than the encoding)
+        ltype = np.int32 if memory.n_blocks * BLOCK_VOXELS < 2 ** 31 else np.int64
         self._plan, start = [], 0
-        for c in plan:
-            cnt = self._scan(c, None)
-            self._plan.append((c, start, cnt))
+        for b0, b1, dx0, dx1 in plan:
+            loc = np.empty((b1 - b0) * BLOCK * BLOCK * (dx1 - dx0), np.int64)
+            m = memory
+            cnt = _ordered_nonzero(self._slots, self._bx, self._by, m._geo, m._page_of, m._pages, m._rows,
+                                   bool(m.sparse_width), b0, b1, dx0, dx1, loc)
+            self._plan.append((start, loc[:cnt].astype(ltype)))
             start += cnt
         self.n = start
-
-    def _scan(self, c, keys):
-        m = self._memory
-        out = np.zeros(0, np.int64) if keys is None else keys
-        loc = np.zeros(0, np.int64) if keys is None else np.empty(len(keys), np.int64)
-        cnt = _ordered_nonzero(self._slots, self._bx, self._by, m._block_keys, m._geo, m._page_of, m._pages, m._rows,
-                               bool(m.sparse_width), c[0], c[1], c[2], c[3], keys is not None, out, loc)
-        return cnt if keys is None else loc
 
     def chunks(self, names=()):
         """Yield ``(start, keys, channels)`` chunk by chunk in key order: ``keys`` (m,) int64 the voxels
@@ -588,9 +590,10 @@ class MemoryChunks:
         m = self._memory
         dense = [s for s in names if s in GEOMETRY_NAMES]
         rest = [s for s in names if s not in GEOMETRY_NAMES]
-        for c, start, cnt in self._plan:
+        for start, loc in self._plan:
+            loc, cnt = loc.astype(np.int64), len(loc)
             keys = np.empty(cnt, np.int64)
-            loc = self._scan(c, keys)
+            _keys_at(m._block_keys, loc, keys)
             out = m._channels_at(loc, dense, stored=True) if dense else {}
             if rest:
                 has = np.zeros(cnt, np.bool_)
