@@ -319,6 +319,9 @@ class _StreamPlan(NamedTuple):
     gap_type: np.dtype
 
 
+_GCD_ROWS = 1 << 14  # rows of a chunk whose common divisor a streamed save takes at a time
+
+
 def _stream_plans(source, n: int, widths: Mapping[str, int]) -> dict:
     st = {name: [0, 0, 0, 0, 0, 0, 0] for name in widths}  # nz rows, lo, hi, gcd, entries, max gap, last row
     for start, _, ch in source.chunks(list(widths)):
@@ -328,8 +331,10 @@ def _stream_plans(source, n: int, widths: Mapping[str, int]) -> dict:
                 continue
             s[0] += len(rows)
             s[1], s[2] = min(s[1], int(vals.min())), max(s[2], int(vals.max()))
-            if s[3] != 1:
-                s[3] = int(np.gcd(s[3], common_divisor(vals)))
+            for a in range(0, len(vals) if s[3] != 1 else 0, _GCD_ROWS):  # int64 copies of a few rows at a time
+                s[3] = int(np.gcd(s[3], common_divisor(vals[a:a + _GCD_ROWS])))
+                if s[3] == 1:
+                    break
             s[4] += int(np.count_nonzero(vals))
             s[5] = max(s[5], int(rows[0] - s[6]), int(np.diff(rows).max()) if len(rows) > 1 else 0)
             s[6] = int(rows[-1])
