@@ -54,15 +54,21 @@ def delta_path(folder: str | Path, frame_id: int) -> Path:
     return Path(folder) / DELTAS_DIR / f"{frame_stem(int(frame_id))}.npz"
 
 
+def _int_type(lo: int, hi: int) -> np.dtype:
+    """The type :func:`_compact` gives an array whose values span ``lo..hi`` (0 included: no array's type
+    depends on whether it holds a 0)."""
+    lo, hi = min(int(lo), 0), max(int(hi), 0)
+    for dt in (np.int8, np.int16, np.int32):
+        if np.iinfo(dt).min <= lo and hi <= np.iinfo(dt).max:
+            return np.dtype(dt)
+    return np.dtype(np.int64)
+
+
 def _compact(a: np.ndarray) -> np.ndarray:
     """Smallest signed integer dtype holding ``a`` (deterministic; read back as int64)."""
     if a.size == 0:
         return a.astype(np.int8)
-    lo, hi = int(a.min()), int(a.max())
-    for dt in (np.int8, np.int16, np.int32):
-        if np.iinfo(dt).min <= lo and hi <= np.iinfo(dt).max:
-            return a.astype(dt)
-    return a
+    return a.astype(_int_type(a.min(), a.max()), copy=False)
 
 
 def _shuffled(arrays: dict, key: str, a: np.ndarray) -> None:
@@ -275,16 +281,6 @@ def read_delta(path: str | Path) -> tuple[list, np.ndarray]:
     return parts, T
 
 
-def _int_type(lo: int, hi: int) -> np.dtype:
-    """The type :func:`_compact` gives an array whose values span ``lo..hi`` (0 included: no array's type
-    depends on whether it holds a 0)."""
-    lo, hi = min(int(lo), 0), max(int(hi), 0)
-    for dt in (np.int8, np.int16, np.int32):
-        if np.iinfo(dt).min <= lo and hi <= np.iinfo(dt).max:
-            return np.dtype(dt)
-    return np.dtype(np.int64)
-
-
 def _nonzero_rows(v, start: int) -> tuple[np.ndarray, np.ndarray]:
     """One chunk of a channel (rows ``start..``, (m, width), or :class:`SparseRows` over the whole order)
     -> (positions of its non-zero rows in the whole order, their values)."""
@@ -324,7 +320,7 @@ _GCD_ROWS = 1 << 14  # rows of a chunk whose common divisor a streamed save take
 
 def _stream_plans(source, n: int, widths: Mapping[str, int]) -> dict:
     st = {name: [0, 0, 0, 0, 0, 0, 0] for name in widths}  # nz rows, lo, hi, gcd, entries, max gap, last row
-    for start, _, ch in source.chunks(list(widths)):
+    for start, _, ch in source.chunks(list(widths), keys=False):
         for name, s in st.items():
             rows, vals = _nonzero_rows(ch[name], start)
             if not len(rows):
@@ -352,7 +348,7 @@ def _streamed_channels(out: dict, source, n: int, widths: Mapping[str, int]) -> 
     entries read chunk by chunk: the same entries, the same bytes, one chunk held at a time."""
     for name, p in _stream_plans(source, n, widths).items():
         def values(name=name, p=p):  # the stored values, chunk by chunk, in their stored type
-            for start, keys, ch in source.chunks([name]):
+            for start, keys, ch in source.chunks([name], keys=False):
                 v = _nonzero_rows(ch[name], start)[1] if p.rows else _all_rows(ch[name], start, len(keys))
                 if p.g > 1:
                     v = v // v.dtype.type(p.g)  # exact
@@ -397,7 +393,7 @@ def _planes(values, dtype: np.dtype, total: int, piece: int = 1 << 22):
 
 def _gaps(source, name: str, p: _StreamPlan):
     last = 0
-    for start, _, ch in source.chunks([name]):
+    for start, _, ch in source.chunks([name], keys=False):
         rows = _nonzero_rows(ch[name], start)[0]
         if len(rows):
             yield np.diff(rows, prepend=np.int64(last)).astype(p.gap_type)
@@ -407,7 +403,7 @@ def _gaps(source, name: str, p: _StreamPlan):
 def _packed(source, name: str, p: _StreamPlan):
     """``np.packbits`` of the kept rows' non-zero mask, chunk by chunk (the bits past a whole byte carried)."""
     carry = np.zeros(0, np.bool_)
-    for start, keys, ch in source.chunks([name]):
+    for start, keys, ch in source.chunks([name], keys=False):
         v = _nonzero_rows(ch[name], start)[1] if p.rows else _all_rows(ch[name], start, len(keys))
         bits = np.concatenate([carry, (v != 0).reshape(-1)])
         whole = len(bits) // 8 * 8

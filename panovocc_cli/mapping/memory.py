@@ -471,26 +471,6 @@ def _keys_at(block_keys, loc, out):
 
 
 @nb.njit(cache=True)
-def _nonzero_voxels(block_keys, n_blocks, geo, page_of, pages, rows, has_sparse):
-    """Keys (unsorted) and locations (slot * 512 + offset) of every voxel with a non-zero channel."""
-    cnt = 0
-    for pass_ in range(2):
-        if pass_ == 1:
-            keys = np.empty(cnt, np.int64)
-            loc = np.empty(cnt, np.int64)
-            cnt = 0
-        for s in range(n_blocks):
-            p = page_of[s] if has_sparse else 0
-            for o in range(512):
-                if _voxel_nonzero(geo, s, o, p, pages, rows):
-                    if pass_ == 1:
-                        keys[cnt] = _voxel_key(block_keys[s], o)
-                        loc[cnt] = s * 512 + o
-                    cnt += 1
-    return keys, loc
-
-
-@nb.njit(cache=True)
 def _has_row(page_of, pages, loc, out):
     """out[n] = whether the voxel at loc[n] owns a sparse-group row."""
     for n in range(loc.shape[0]):
@@ -547,6 +527,11 @@ class MemoryChunks:
         self._memory = memory
         self.header = memory._header()
         self.names = tuple(s.name for s in memory.specs)
+        if memory._nonzero is not None:  # the key order a scan made already (an export's): its slices
+            loc = memory._nonzero[1]
+            self._plan = [(a, loc[a:a + chunk]) for a in range(0, len(loc), chunk)]
+            self.n = len(loc)
+            return
         bkeys = memory._block_keys[:memory.n_blocks]
         self._slots = np.argsort(bkeys, kind="stable").astype(np.int64)
         bx, by, _ = unpack_index(bkeys[self._slots])
@@ -580,9 +565,10 @@ class MemoryChunks:
             start += cnt
         self.n = start
 
-    def chunks(self, names=()):
+    def chunks(self, names=(), keys: bool = True):
         """Yield ``(start, keys, channels)`` chunk by chunk in key order: ``keys`` (m,) int64 the voxels
-        ``start .. start + m - 1`` of the key order; ``channels`` name -> (m, width) in the stored type
+        ``start .. start + m - 1`` of the key order (``keys=False``: an empty array of length m, the keys
+        not computed); ``channels`` name -> (m, width) in the stored type
         (the geometry) or a :class:`~panovocc_cli.io.mapstore.SparseRows` over the whole order (the sparse
         group: the voxels that own a row), for ``names`` only."""
         from ..io.mapstore import SparseRows
@@ -592,8 +578,9 @@ class MemoryChunks:
         rest = [s for s in names if s not in GEOMETRY_NAMES]
         for start, loc in self._plan:
             loc, cnt = loc.astype(np.int64), len(loc)
-            keys = np.empty(cnt, np.int64)
-            _keys_at(m._block_keys, loc, keys)
+            out_keys = np.empty(cnt, np.int64) if keys else np.broadcast_to(np.int64(0), (cnt,))
+            if keys:
+                _keys_at(m._block_keys, loc, out_keys)
             out = m._channels_at(loc, dense, stored=True) if dense else {}
             if rest:
                 has = np.zeros(cnt, np.bool_)
@@ -601,7 +588,7 @@ class MemoryChunks:
                 pos = np.flatnonzero(has)
                 at = m._channels_at(loc[pos], rest, stored=True)
                 out.update({k: SparseRows(start + pos, at[k], self.n) for k in rest})
-            yield start, keys, out
+            yield start, out_keys, out
 
 
 def _same_rows(channels: Mapping) -> list:
@@ -893,10 +880,10 @@ class VoxelMemory:
         channels : :class:`NonzeroChannels`, name -> (n, width) int64, each read when first asked for
         """
         if self._nonzero is None:  # a save and an export of the same memory scan it once
-            keys, loc = _nonzero_voxels(self._block_keys, self.n_blocks, self._geo, self._page_of, self._pages,
-                                        self._rows, bool(self.sparse_width))
-            order = np.argsort(keys, kind="stable")
-            keys, loc = keys[order], loc[order]
+            # in key order as scanned, x-slab by x-slab (MemoryChunks): no sort, no unsorted copy
+            loc = np.concatenate([np.zeros(0, np.int64)] + [c for _, c in MemoryChunks(self)._plan], dtype=np.int64)
+            keys = np.empty(len(loc), np.int64)
+            _keys_at(self._block_keys, loc, keys)
             keys.flags.writeable = loc.flags.writeable = False
             self._nonzero = (keys, loc)
         keys, loc = self._nonzero

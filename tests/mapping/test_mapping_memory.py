@@ -257,21 +257,29 @@ def test_memory_file_streamed_in_key_ranges_has_the_same_bytes(tmp_path, wide):
     rng = np.random.default_rng(21)
     m = _streamable_memory(rng, wide)
     assert (m._geo.dtype == np.int64) == wide
-    folders = {}
-    for name, arrays in (("whole", m.to_arrays(sparse=True)), ("stream", m.chunked()), ("slabs", m.chunked(4096)),
-                         ("offsets", m.chunked(512))):
-        folders[name] = tmp_path / name
-        folders[name].mkdir()
-        mapstore.write_memory(folders[name], arrays, 1, np.eye(4)[None])
-    want = (folders["whole"] / "memory.npz").read_bytes()
-    for name in ("stream", "slabs", "offsets"):
-        assert (folders[name] / "memory.npz").read_bytes() == want, name
-    with np.load(folders["whole"] / "memory.npz") as z:  # the encodings the test means to cover
+    (tmp_path / "whole").mkdir()
+    mapstore.write_memory(tmp_path / "whole", m.to_arrays(sparse=True), 1, np.eye(4)[None])
+    want = (tmp_path / "whole" / "memory.npz").read_bytes()
+    with np.load(tmp_path / "whole" / "memory.npz") as z:  # the encodings the test means to cover
         assert {"nz_E", "gcd_N", "rows_E", "shape_A", "shape_E"} <= set(z.files)
-    sizes = [len(k) for _, k, _ in m.chunked(4096).chunks()]
-    assert len(sizes) > 10 and max(sizes) <= 4096 and sum(sizes) == len(m.to_arrays()["keys"])
-    keys = np.concatenate([k for _, k, _ in m.chunked(512).chunks()])
-    np.testing.assert_array_equal(keys, m.to_arrays()["keys"])
+    all_keys = m.to_arrays()["keys"]
+    for chunk in (None, 4096, 512):
+        for scanned in (True, False):  # scanned x-slab by x-slab, or slices of an export's key order
+            if scanned:
+                m._nonzero = None
+            arrays = m.chunked(chunk)
+            out = tmp_path / f"{chunk}-{scanned}"
+            out.mkdir()
+            mapstore.write_memory(out, arrays, 1, np.eye(4)[None])
+            assert (out / "memory.npz").read_bytes() == want, (chunk, scanned)
+            keys = [k for _, k, _ in m.chunked(chunk).chunks()]
+            np.testing.assert_array_equal(np.concatenate(keys), all_keys)
+            assert max(len(k) for k in keys) <= (chunk or memory.SAVE_CHUNK)
+            if chunk == 4096 and scanned:
+                assert len(keys) > 10
+        m.nonzero()  # the scan's key order, cached for the next round
+    m._nonzero = None
+    np.testing.assert_array_equal(m.nonzero()[0], all_keys)
 
 
 def test_an_empty_memory_streams_to_the_same_file(tmp_path):
