@@ -96,6 +96,53 @@ def _unshuffled(z, files, key: str) -> np.ndarray:
     return a.astype(np.int64)
 
 
+class StoredRows:
+    """A memory file's channel as it is stored (its compact type, as byte planes or as it is, the quotients
+    of its common divisor ``g``), (m, width) int64 when read: ``a[i:j]`` decodes rows i..j-1 only
+    (``np.asarray(a)``: all of them). What :func:`read_memory` gives with ``sparse``, so a load adds a
+    file to the memory a chunk of rows at a time without an int64 copy of every channel beside it."""
+
+    ndim = 2
+    dtype = np.dtype(np.int64)
+
+    def __init__(self, raw: np.ndarray, shape: tuple, planes: bool, g: int):
+        self._raw, self.shape, self._planes, self._g = raw, (int(shape[0]), int(shape[1])), planes, int(g)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        if not isinstance(key, slice) or key.step not in (None, 1):
+            raise TypeError("StoredRows reads slices of rows")
+        a, b, _ = key.indices(self.shape[0])
+        b, w = max(a, b), self.shape[1]
+        if self._planes:
+            x = np.ascontiguousarray(self._raw[:, a * w:b * w].T).view(f"<i{self._raw.shape[0]}")
+        else:
+            x = self._raw.reshape(-1)[a * w:b * w]
+        x = x.reshape(b - a, w).astype(np.int64)
+        if self._g > 1:
+            x *= self._g
+        return x
+
+    def __array__(self, dtype=None, copy=None):
+        x = self[:]
+        return x if dtype is None else x.astype(dtype)
+
+
+def _stored_rows(z, files, prefix: str, name: str, n: int, m: int | None) -> StoredRows:
+    """:class:`StoredRows` of channel ``name`` (m rows; None: n rows, or as the shape entry says)."""
+    raw = np.asarray(z[f"{prefix}ch_{name}"])
+    planes = f"{prefix}shape_{name}" in files
+    if planes:
+        shape = tuple(int(x) for x in np.asarray(z[f"{prefix}shape_{name}"]))
+    else:
+        rows = n if m is None else m
+        shape = (rows, raw.size // max(rows, 1) if raw.ndim != 2 else raw.shape[1])
+    g = int(np.asarray(z[f"{prefix}gcd_{name}"]).reshape(-1)[0]) if f"{prefix}gcd_{name}" in files else 1
+    return StoredRows(raw, shape, planes, g)
+
+
 def _factored(channels: Mapping[str, np.ndarray], factors: Mapping[str, tuple] | None, n: int) -> tuple[dict, dict]:
     """The channels with each one that factors as ``factor * m / denominator`` (``factors``: name ->
     (factor channel, denominator)) replaced by the integer array m, and the factorisations that held.
@@ -197,7 +244,8 @@ def _put_values(arrays: dict, prefix: str, name: str, a: np.ndarray) -> None:
 
 def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
     """Inverse of :func:`_encode_channels`: dict name -> (n, width) int64 (``sparse``: a channel stored as
-    rows stays a :class:`SparseRows`)."""
+    rows stays a :class:`SparseRows`, and a channel stored without a mask or factor is a :class:`StoredRows`,
+    decoded when sliced)."""
     ch = {}
     head = f"{prefix}ch_"
     files = set(z.files if hasattr(z, "files") else z)
@@ -205,6 +253,12 @@ def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
         if not k.startswith(head):
             continue
         name = k[len(head):]
+        if sparse and f"{prefix}nz_{name}" not in files and f"{prefix}fac_{name}" not in files:
+            rows = np.cumsum(np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64)) if f"{prefix}rows_{name}" in \
+                files else None
+            vals = _stored_rows(z, files, prefix, name, n, None if rows is None else len(rows))
+            ch[name] = vals if rows is None else SparseRows(rows, vals, n)  # decoded a slice at a time
+            continue
         vals = _unshuffled(z, files, k)
         if f"{prefix}gcd_{name}" in files:
             vals = vals * int(np.asarray(z[f"{prefix}gcd_{name}"]).reshape(-1)[0])

@@ -280,6 +280,17 @@ def test_memory_file_streamed_in_key_ranges_has_the_same_bytes(tmp_path, wide):
         m.nonzero()  # the scan's key order, cached for the next round
     m._nonzero = None
     np.testing.assert_array_equal(m.nonzero()[0], all_keys)
+    # read for a load: channels kept in their stored form, decoded a slice of rows at a time, the same values
+    lazy, eager = mapstore.read_memory(tmp_path / "whole", sparse=True)[0], mapstore.read_memory(tmp_path / "whole")[0]
+    for k, v in eager.items():
+        if k.startswith("ch_"):
+            got = lazy[k].dense() if isinstance(lazy[k], mapstore.SparseRows) else np.asarray(lazy[k])
+            np.testing.assert_array_equal(got, v)
+    stored = [v for v in lazy.values() if isinstance(v, mapstore.StoredRows)]
+    stored += [v.values for v in lazy.values() if isinstance(v, mapstore.SparseRows)]
+    assert any(isinstance(v, mapstore.StoredRows) for v in stored)
+    for v in stored:
+        np.testing.assert_array_equal(v[3:40], np.asarray(v)[3:40])
 
 
 def test_an_empty_memory_streams_to_the_same_file(tmp_path):
