@@ -283,11 +283,14 @@ class Mapper:
 
     # -- outputs ---------------------------------------------------------------------------------
     @_locked
-    def export(self) -> MapExport:
-        """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory."""
+    def export(self, previous: Grid | None = None, changed_keys: np.ndarray | None = None) -> MapExport:
+        """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory.
+        ``previous``: the grid of an export before the voxels ``changed_keys`` changed (an incremental
+        export, the same result: :func:`.export.export_memory`)."""
         keys, ch = self.memory.nonzero()
         return export_memory(keys, ch, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
-                             self.config, origin_index=self.config.origin_index())
+                             self.config, origin_index=self.config.origin_index(), previous=previous,
+                             changed_keys=changed_keys)
 
     def prediction(self) -> Grid:
         """The semantic occupancy grid: 1..C vocabulary classes (254 occupied without class), 0 free,
