@@ -90,41 +90,60 @@ def _slices(n: int):
 
 def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
     """:func:`memory_to_grid`'s grid and occupied keys, and the positions (m,) of the occupied voxels in
-    ``keys`` with their score g (m,): per-voxel work in slices of :data:`CHUNK` voxels, so the export's
-    temporaries beside the grid are one byte a non-zero voxel and a slice's (the states and g are the same
-    as one :func:`classify` call's)."""
-    n = len(keys)
-    state = np.zeros(n, np.uint8)  # 0 neither, EMPTY + 1 free, OCCUPIED_UNKNOWN_CLASS occupied
-    g_occ = []
+    ``keys`` with their score g (m,) (:func:`_grid_of_pieces` of one piece)."""
+    return _grid_of_pieces(lambda: [(keys, channels, None)], voxel_size, p, class_names)
+
+
+def _geometry(channels, sl: slice) -> dict:
     geo = ("A", "N", "F", "O")
+    return channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
+        {k: channels[k][sl] for k in geo}
+
+
+def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
+    """The three-state grid of non-zero voxels given in pieces, the occupied voxels' keys (m,), ids (m,)
+    int64 and score g (m,).
+
+    ``pieces()`` yields ``(keys, channels, ids)`` in key order: sorted keys (n,), their channels (a dict,
+    or a reader with ``at(positions, names)``) and an id per voxel that the caller's reader of the occupied
+    voxels understands (None: the position in the concatenated keys). Called twice (the grid's box, then
+    the grid), each piece in slices of :data:`CHUNK` voxels: the temporaries beside the grid are a slice's
+    and the occupied voxels' keys, ids and g (the states and g are the same as one :func:`classify` call's).
+    """
+    g_occ, occ_keys, occ_ids = [], [], []
     i0 = np.full(3, np.iinfo(np.int64).max, np.int64)
     i1 = np.full(3, np.iinfo(np.int64).min, np.int64)
-    for sl in _slices(n):  # a memory's channels are read a slice at a time (never all of them at once)
-        c = channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
-            {k: channels[k][sl] for k in geo}
-        occ, free, g = classify(c["A"], c["N"], c["F"], c["O"], p)
-        state[sl][free] = EMPTY + 1
-        state[sl][occ] = OCCUPIED_UNKNOWN_CLASS
-        g_occ.append(g[occ])
-        if occ.any() or free.any():
-            idx = unpack_keys(keys[sl][occ | free])
-            i0, i1 = np.minimum(i0, idx.min(axis=0)), np.maximum(i1, idx.max(axis=0))
-        del c, occ, free, g
-    g_occ = np.concatenate(g_occ) if g_occ else np.zeros(0, np.float64)
-    pos = np.flatnonzero(state == OCCUPIED_UNKNOWN_CLASS)
-    if len(g_occ) == 0 and not state.any():
+    offset = 0
+    for keys, channels, ids in pieces():
+        for sl in _slices(len(keys)):  # a memory's channels are read a slice at a time (never all at once)
+            c = _geometry(channels, sl)
+            occ, free, g = classify(c["A"], c["N"], c["F"], c["O"], p)
+            g_occ.append(g[occ])
+            occ_keys.append(keys[sl][occ])
+            occ_ids.append(np.flatnonzero(occ) + (offset + sl.start) if ids is None else ids[sl][occ])
+            if occ.any() or free.any():
+                idx = unpack_keys(keys[sl][occ | free])
+                i0, i1 = np.minimum(i0, idx.min(axis=0)), np.maximum(i1, idx.max(axis=0))
+            del c, occ, free, g
+        offset += len(keys)
+    cat = (lambda parts, dt: np.concatenate(parts) if parts else np.zeros(0, dt))
+    g_occ, occ_keys, occ_ids = cat(g_occ, np.float64), cat(occ_keys, np.int64), cat(occ_ids, np.int64)
+    if np.any(i0 > i1):  # nothing occupied or free
         labels = np.full((1, 1, 1), UNKNOWN, np.uint8)
         return (Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)),
-                keys[:0], pos, g_occ)
+                occ_keys, occ_ids, g_occ)
     labels = np.full(tuple(i1 - i0 + 1), UNKNOWN, np.uint8)
-    for sl in _slices(n):
-        st = state[sl]
-        kept = st > 0
-        local = unpack_keys(keys[sl][kept]) - i0
-        labels[local[:, 0], local[:, 1], local[:, 2]] = np.where(st[kept] == OCCUPIED_UNKNOWN_CLASS,
-                                                                 OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
+    for keys, channels, _ in pieces():
+        for sl in _slices(len(keys)):
+            c = _geometry(channels, sl)
+            occ, free, _ = classify(c["A"], c["N"], c["F"], c["O"], p)
+            kept = occ | free
+            local = unpack_keys(keys[sl][kept]) - i0
+            labels[local[:, 0], local[:, 1], local[:, 2]] = np.where(occ[kept], OCCUPIED_UNKNOWN_CLASS,
+                                                                     EMPTY).astype(np.uint8)
+            del c, occ, free
     grid = Grid(labels, index_to_center(i0, voxel_size), voxel_size, list(class_names))
-    return grid, keys[pos], pos, g_occ
+    return grid, occ_keys, occ_ids, g_occ
 
 
 def height_colors(z: np.ndarray, z_range: tuple | None = None) -> np.ndarray:
@@ -308,7 +327,7 @@ def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
 
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
                   vocab=(), semantic=None, origin_index=(0, 0, 0), *, previous: Grid | None = None,
-                  changed_keys: np.ndarray | None = None) -> MapExport:
+                  changed_keys: np.ndarray | None = None, pieces=None, reader=None) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
@@ -328,13 +347,21 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
         relative to ``origin_index``) changed: an incremental export, which labels again only the cubes
         whose halo holds a changed voxel (or an occupied voxel ``previous`` does not hold as occupied)
         and takes the other labels from ``previous``; the same result, bit for bit, as without it
+    pieces, reader : instead of ``keys`` and ``channels`` (None then): the non-zero voxels a slab at a
+        time (:func:`_grid_of_pieces`, e.g. ``VoxelMemory.nonzero_slabs``) and ``reader(ids)``, the
+        occupied voxels' channels (:class:`OccupiedChannels`) from their ids: an export that never holds
+        every non-zero voxel's key at once
     """
-    grid, occ_keys, pos, g = _grid_of(keys, channels, voxel_size, occupancy)
+    if pieces is None:
+        pieces = (lambda: [(keys, channels, None)])
+        reader = (lambda ids: OccupiedChannels(channels, ids))
+    grid, occ_keys, ids, g = _grid_of_pieces(pieces, voxel_size, occupancy)
     # a memory's channels are read at the occupied voxels only, and each when it is needed
-    sub = OccupiedChannels(channels, pos)
+    sub = reader(ids)
+    del ids
     labels = None
     oi = np.asarray(origin_index, np.int64).reshape(3)
-    if len(vocab) and "E" in channels:
+    if len(vocab) and "E" in sub:
         before = changed = None
         if previous is not None and _same_classes(previous, voxel_size, vocab):
             before = previous_labels(previous, occ_keys, oi)

@@ -416,15 +416,16 @@ def _sparse_at(page_of, pages, rows, loc, out):
 
 
 @nb.njit(cache=True)
-def _nonzero_voxels(block_keys, n_blocks, geo, page_of, pages, rows, has_sparse):
-    """Keys (unsorted) and locations (slot * 512 + offset) of every voxel with a non-zero channel."""
+def _nonzero_voxels(block_keys, slots, geo, page_of, pages, rows, has_sparse):
+    """Keys (unsorted) and locations (slot * 512 + offset) of every voxel with a non-zero channel in the
+    blocks at ``slots``."""
     cnt = 0
     for pass_ in range(2):
         if pass_ == 1:
             keys = np.empty(cnt, np.int64)
             loc = np.empty(cnt, np.int64)
             cnt = 0
-        for s in range(n_blocks):
+        for s in slots:
             p = page_of[s] if has_sparse else 0
             for o in range(512):
                 nz = False
@@ -774,14 +775,39 @@ class VoxelMemory:
         channels : :class:`NonzeroChannels`, name -> (n, width) int64, each read when first asked for
         """
         if self._nonzero is None:  # a save and an export of the same memory scan it once
-            keys, loc = _nonzero_voxels(self._block_keys, self.n_blocks, self._geo, self._page_of, self._pages,
-                                        self._rows, bool(self.sparse_width))
+            keys, loc = _nonzero_voxels(self._block_keys, np.arange(self.n_blocks), self._geo, self._page_of,
+                                        self._pages, self._rows, bool(self.sparse_width))
             order = np.argsort(keys, kind="stable")
             keys, loc = keys[order], loc[order]
             keys.flags.writeable = loc.flags.writeable = False
             self._nonzero = (keys, loc)
         keys, loc = self._nonzero
         return keys, NonzeroChannels(self, loc)
+
+    def nonzero_slabs(self, max_voxels: int = 1 << 18):
+        """:meth:`nonzero` a slab of the key space at a time: yields ``(keys, locations)`` of the voxels with
+        a non-zero channel whose blocks lie in a run of block x-indices of at most about ``max_voxels``
+        allocated voxels (one block x-index at least), the slabs in key order and each sorted, so that
+        their concatenation is :meth:`nonzero`'s keys. For :class:`NonzeroChannels` (``NonzeroChannels(memory,
+        locations)``); the temporaries are a slab's, not the memory's."""
+        bkeys = self._block_keys[:self.n_blocks]
+        if len(bkeys) == 0:
+            return
+        order = np.argsort(bkeys, kind="stable")  # block keys sort x-major like voxel keys
+        bx = unpack_index(bkeys[order])[0]
+        starts = np.flatnonzero(np.r_[True, bx[1:] != bx[:-1]])  # the first block of each block x-index
+        ends = np.r_[starts[1:], len(order)]
+        per_slab = max(int(max_voxels) // BLOCK_VOXELS, 1)
+        a = 0
+        while a < len(starts):
+            b = a + 1
+            while b < len(starts) and ends[b] - starts[a] <= per_slab:
+                b += 1
+            keys, loc = _nonzero_voxels(self._block_keys, order[starts[a]:ends[b - 1]], self._geo, self._page_of,
+                                        self._pages, self._rows, bool(self.sparse_width))
+            o = np.argsort(keys, kind="stable")
+            yield keys[o], loc[o]
+            a = b
 
     def to_arrays(self, sparse: bool = False) -> dict:
         """The canonical on-disk form (see docs/mapping.md): equal sums give equal arrays. ``sparse``: the

@@ -16,6 +16,7 @@ from panovocc_cli.mapping.params import OccupancyParams
 from panovocc_cli.semantics.gsc import GSCParams
 
 VOCAB = ["wall", "floor", "chair", "table"]
+KEY_RANGE_EDGE = 1 << 20
 
 
 def _memory(seed=0):
@@ -113,6 +114,7 @@ def test_a_cube_is_labelled_again_exactly_when_its_halo_holds_a_changed_voxel():
     tests/semantics/test_gsc_blocks.py (one voxel less gives other labels)."""
     from panovocc_cli.geometry.lattice import KEY_RANGE
 
+    assert KEY_RANGE == KEY_RANGE_EDGE
     rng = np.random.default_rng(4)
     changed = rng.integers(-30, 30, (40, 3))
     changed[:2] = [[KEY_RANGE - 1, 0, 0], [0, 1 - KEY_RANGE, 5]]
@@ -122,3 +124,25 @@ def test_a_cube_is_labelled_again_exactly_when_its_halo_holds_a_changed_voxel():
         assert redo(cube, None) == bool(np.all((changed >= lo) & (changed < hi), axis=1).any())
     edge = np.array([(KEY_RANGE - 1) // 8, 0, 0])
     assert redo(edge, None) and not redo(edge - [4, 0, 0], None)
+
+
+def test_memory_slabs_concatenate_to_nonzero():
+    """VoxelMemory.nonzero_slabs: slabs of the key space in key order whose concatenation is nonzero()
+    (keys and locations), whatever the slab size (one block x-index at least, or all in one)."""
+    from panovocc_cli.mapping.memory import Delta, VoxelMemory
+
+    rng = np.random.default_rng(7)
+    idx = rng.integers(-300, 300, size=(30000, 3))
+    idx[:50] = rng.integers(KEY_RANGE_EDGE - 20, KEY_RANGE_EDGE, size=(50, 3))  # far out, near the lattice's edge
+    keys = np.unique(pack_keys(idx))
+    ch = {c: rng.integers(0, 2 ** 20, size=(len(keys), 1)) for c in ("A", "N", "F", "O")}
+    ch["A"][::3] = ch["N"][::3] = ch["F"][::3] = ch["O"][::3] = 0  # allocated but zero: not listed
+    m = VoxelMemory(0.08)
+    m.add(Delta(keys, ch))
+    want_k, want = m.nonzero()
+    for size in (1, 512 * 40, 1 << 30):
+        slabs = list(m.nonzero_slabs(size))
+        assert len(slabs) > (1 if size < 1 << 30 else 0)
+        assert np.array_equal(np.concatenate([k for k, _ in slabs]), want_k)
+        assert np.array_equal(np.concatenate([loc for _, loc in slabs]), want._loc)
+    assert len(list(VoxelMemory(0.08).nonzero_slabs())) == 0
