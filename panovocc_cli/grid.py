@@ -23,6 +23,16 @@ UNKNOWN = 255
 MAX_CLASSES = 254  # ids 0..253
 
 
+def _values_used(labels: np.ndarray) -> np.ndarray:
+    """The distinct values of a uint8 array (sorted), a slab of about 16 MB at a time (``np.unique`` of a
+    building's grid would sort a copy of all of it)."""
+    seen = np.zeros(256, np.bool_)
+    step = max(1, (1 << 24) // max(int(np.prod(labels.shape[1:])), 1))
+    for a in range(0, labels.shape[0], step):
+        seen[np.unique(labels[a:a + step])] = True
+    return np.flatnonzero(seen)
+
+
 @dataclass
 class Grid:
     """A semantic occupancy grid on the global lattice.
@@ -75,7 +85,7 @@ class Grid:
                 raise PanovoccError(f"class_names has {name!r} twice (ids {seen[name]} and {k}; names are compared "
                                     "after lower-casing and tv-screen -> tv, lamp -> lighting)", where)
             seen[name] = k
-        used = np.unique(self.labels)
+        used = _values_used(self.labels)
         bad = used[(used >= len(self.class_names)) & (used < OCCUPIED_UNKNOWN_CLASS)]
         if bad.size:
             raise PanovoccError(f"label {int(bad[0])} has no entry in class_names ({len(self.class_names)} names)", where)

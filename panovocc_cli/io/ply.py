@@ -254,14 +254,42 @@ def write_ply(path: str | Path, vertex: dict[str, np.ndarray], vertex_types: lis
                 f.write(farr.tobytes())
 
 
-def write_ply_points(path: str | Path, points: np.ndarray, colors: np.ndarray,
-                     comment: str = "panovocc occupied voxel centres") -> None:
+_POINT_TYPES = [("x", "float"), ("y", "float"), ("z", "float"), ("red", "uchar"), ("green", "uchar"), ("blue", "uchar")]
+POINT_CHUNK = 1 << 18
+"""Points :func:`write_ply_points` converts and writes at a time."""
+
+
+def write_ply_points(path: str | Path, points, colors=None, comment: str = "panovocc occupied voxel centres",
+                     count: int | None = None) -> None:
     """Atomically write a binary little-endian coloured point cloud.
 
-    points : (n, 3) float, metres, world frame (stored float32); colors : (n, 3) uint8
+    points : (n, 3) float, metres, world frame (stored float32); colors : (n, 3) uint8. Or, with
+    ``count``: ``points`` an iterable of ``(points, colors)`` chunks of ``count`` points in all (a large
+    cloud written without its whole arrays at once); the same bytes either way.
     """
-    pts = np.asarray(points, np.float32).reshape(-1, 3)
-    col = np.asarray(colors, np.uint8).reshape(-1, 3)
-    vertex = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "red": col[:, 0], "green": col[:, 1], "blue": col[:, 2]}
-    types = [("x", "float"), ("y", "float"), ("z", "float"), ("red", "uchar"), ("green", "uchar"), ("blue", "uchar")]
-    write_ply(path, vertex, types, comment=comment)
+    if count is None:
+        pts = np.asarray(points).reshape(-1, 3)
+        col = np.asarray(colors).reshape(-1, 3)
+        count = len(pts)
+        chunks = ((pts[a:a + POINT_CHUNK], col[a:a + POINT_CHUNK]) for a in range(0, count, POINT_CHUNK))
+    else:
+        chunks = points
+    vdt = np.dtype([(n, "<" + _TYPES[t]) for n, t in _POINT_TYPES])
+    header = ["ply", "format binary_little_endian 1.0"] + ([f"comment {comment}"] if comment else [])
+    header += [f"element vertex {count}"] + [f"property {t} {n}" for n, t in _POINT_TYPES] + ["end_header"]
+    written = 0
+    with atomic_path(path, suffix=".ply") as tmp:
+        with open(tmp, "wb") as f:
+            f.write(("\n".join(header) + "\n").encode("ascii"))
+            for pts, col in chunks:
+                pts = np.asarray(pts, np.float32).reshape(-1, 3)
+                col = np.asarray(col, np.uint8).reshape(-1, 3)
+                varr = np.empty(len(pts), dtype=vdt)
+                for k, name in enumerate(("x", "y", "z")):
+                    varr[name] = pts[:, k]
+                for k, name in enumerate(("red", "green", "blue")):
+                    varr[name] = col[:, k]
+                f.write(varr.tobytes())
+                written += len(pts)
+            if written != count:
+                raise PanovoccError(f"point cloud of {count} points got {written}", path)

@@ -27,14 +27,15 @@ import numpy as np
 
 from ..classes import class_color
 from ..errors import PanovoccError
-from ..geometry.lattice import index_to_center, unpack_keys
+from ..geometry.lattice import KEY_RANGE, index_to_center, pack_keys, unpack_index, unpack_keys
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
-from ..semantics.gsc import UNARY_CHUNK, consolidate, unaries
+from ..semantics.gsc import BLOCK, block_halo, consolidate_blocks, unaries
 from .contributors import NORMAL_STEPS, S_SCALE
 from .memory import FIXED_SCALE
 from .params import RULES, OccupancyParams
 
 UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
+UNKNOWN_CLASS = -2  # previous_labels: a voxel the previous grid does not hold as occupied
 
 
 def signed_score(A, N, F, O) -> tuple[np.ndarray, np.ndarray]:
@@ -89,59 +90,74 @@ def _slices(n: int):
 
 def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
     """:func:`memory_to_grid`'s grid and occupied keys, and the positions (m,) of the occupied voxels in
-    ``keys`` with their score g (m,): per-voxel work in slices of :data:`CHUNK` voxels, so the export's
-    temporaries stay a few megabytes whatever the map's size (the masks and g are the same as one
-    :func:`classify` call's)."""
-    n = len(keys)
-    occ = np.zeros(n, np.bool_)
-    free = np.zeros(n, np.bool_)
-    g_occ = []
+    ``keys`` with their score g (m,) (:func:`_grid_of_pieces` of one piece)."""
+    return _grid_of_pieces(lambda: [(keys, channels, None)], voxel_size, p, class_names)
+
+
+def _geometry(channels, sl: slice) -> dict:
     geo = ("A", "N", "F", "O")
-    for sl in _slices(n):  # a memory's channels are read a slice at a time (never all of them at once)
-        c = channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
-            {k: channels[k][sl] for k in geo}
-        occ[sl], free[sl], g = classify(c["A"], c["N"], c["F"], c["O"], p)
-        g_occ.append(g[occ[sl]])
-    g_occ = np.concatenate(g_occ) if g_occ else np.zeros(0, np.float64)
-    pos = np.flatnonzero(occ)
-    kept = keys[occ | free]
-    state = np.where(occ[occ | free], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
-    if len(kept) == 0:
-        labels = np.full((1, 1, 1), UNKNOWN, np.uint8)
-        return (Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)),
-                keys[:0], pos, g_occ)
+    return channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
+        {k: channels[k][sl] for k in geo}
+
+
+def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
+    """The three-state grid of non-zero voxels given in pieces, the occupied voxels' keys (m,), ids (m,)
+    int64 and score g (m,).
+
+    ``pieces()`` yields ``(keys, channels, ids)`` in key order: sorted keys (n,), their channels (a dict,
+    or a reader with ``at(positions, names)``) and an id per voxel that the caller's reader of the occupied
+    voxels understands (None: the position in the concatenated keys). Called twice (the grid's box, then
+    the grid), each piece in slices of :data:`CHUNK` voxels: the temporaries beside the grid are a slice's
+    and the occupied voxels' keys, ids and g (the states and g are the same as one :func:`classify` call's).
+    """
+    g_occ, occ_keys, occ_ids = [], [], []
     i0 = np.full(3, np.iinfo(np.int64).max, np.int64)
     i1 = np.full(3, np.iinfo(np.int64).min, np.int64)
-    for sl in _slices(len(kept)):
-        idx = unpack_keys(kept[sl])
-        i0, i1 = np.minimum(i0, idx.min(axis=0)), np.maximum(i1, idx.max(axis=0))
+    offset = 0
+    for keys, channels, ids in pieces():
+        for sl in _slices(len(keys)):  # a memory's channels are read a slice at a time (never all at once)
+            c = _geometry(channels, sl)
+            occ, free, g = classify(c["A"], c["N"], c["F"], c["O"], p)
+            g_occ.append(g[occ])
+            occ_keys.append(keys[sl][occ])
+            occ_ids.append(np.flatnonzero(occ) + (offset + sl.start) if ids is None else ids[sl][occ])
+            if occ.any() or free.any():
+                idx = unpack_keys(keys[sl][occ | free])
+                i0, i1 = np.minimum(i0, idx.min(axis=0)), np.maximum(i1, idx.max(axis=0))
+            del c, occ, free, g
+        offset += len(keys)
+    cat = (lambda parts, dt: np.concatenate(parts) if parts else np.zeros(0, dt))
+    g_occ, occ_keys, occ_ids = cat(g_occ, np.float64), cat(occ_keys, np.int64), cat(occ_ids, np.int64)
+    if np.any(i0 > i1):  # nothing occupied or free
+        labels = np.full((1, 1, 1), UNKNOWN, np.uint8)
+        return (Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)),
+                occ_keys, occ_ids, g_occ)
     labels = np.full(tuple(i1 - i0 + 1), UNKNOWN, np.uint8)
-    for sl in _slices(len(kept)):
-        local = unpack_keys(kept[sl]) - i0
-        labels[local[:, 0], local[:, 1], local[:, 2]] = state[sl]
+    for keys, channels, _ in pieces():
+        for sl in _slices(len(keys)):
+            c = _geometry(channels, sl)
+            occ, free, _ = classify(c["A"], c["N"], c["F"], c["O"], p)
+            kept = occ | free
+            local = unpack_keys(keys[sl][kept]) - i0
+            labels[local[:, 0], local[:, 1], local[:, 2]] = np.where(occ[kept], OCCUPIED_UNKNOWN_CLASS,
+                                                                     EMPTY).astype(np.uint8)
+            del c, occ, free
     grid = Grid(labels, index_to_center(i0, voxel_size), voxel_size, list(class_names))
-    return grid, keys[pos], pos, g_occ
+    return grid, occ_keys, occ_ids, g_occ
 
 
-def height_colors(z: np.ndarray) -> np.ndarray:
-    """(n, 3) uint8 colours of heights z (n,) metres: a blue-green-yellow-red ramp over their range."""
+def height_colors(z: np.ndarray, z_range: tuple | None = None) -> np.ndarray:
+    """(n, 3) uint8 colours of heights z (n,) metres: a blue-green-yellow-red ramp over their range (or over
+    ``z_range`` = (lowest, highest), when z is a part of the points)."""
     z = np.asarray(z, np.float64)
-    t = (z - z.min()) / max(float(np.ptp(z)), 1e-9) if len(z) else z
+    if z_range is None and len(z):
+        z_range = (z.min(), z.max())
+    t = (z - z_range[0]) / max(float(z_range[1] - z_range[0]), 1e-9) if len(z) else z
     stops = np.array([[49, 54, 149], [69, 170, 110], [250, 220, 60], [215, 48, 39]], np.float64)
     x = t * (len(stops) - 1)
     k = np.clip(np.floor(x).astype(int), 0, len(stops) - 2)
     f = (x - k)[:, None]
     return np.rint(stops[k] * (1 - f) + stops[k + 1] * f).astype(np.uint8)
-
-
-def occupied_points_and_colors(occ_keys: np.ndarray, voxel_size: float, rgb_mean: np.ndarray | None = None,
-                               origin_index=(0, 0, 0)):
-    """Centres (n, 3) float64 metres (world) of occupied voxels and their colours (mean RGB if given, else
-    height); ``occ_keys`` relative to a map's ``origin_index`` (3,) int64."""
-    centres = index_to_center(unpack_keys(occ_keys) + np.asarray(origin_index, np.int64), voxel_size)
-    if rgb_mean is not None:
-        return centres, np.clip(np.rint(rgb_mean), 0, 255).astype(np.uint8)
-    return centres, height_colors(centres[:, 2])
 
 
 class OccupiedChannels(Mapping):
@@ -209,52 +225,96 @@ class MapExport:
         return out
 
 
-def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params) -> np.ndarray:
+SEMANTIC_INPUTS = ("E", "S", "normal_sum", "rgb_sum", "count")
+"""The stored channels GSC's inputs are made of (:func:`gsc_inputs`)."""
+
+
+def gsc_inputs(channels, g: np.ndarray, rows: np.ndarray) -> tuple:
+    """:func:`~panovocc_cli.semantics.gsc.consolidate`'s inputs ``(p, S, g, normals, colors)`` of the occupied
+    voxels at positions ``rows`` (sorted) from their stored channels (:class:`OccupiedChannels`) and their
+    score ``g`` (all occupied voxels'): per-voxel values, the same whichever rows are read together."""
+    c = channels.rows(rows, SEMANTIC_INPUTS)
+    S = c["S"][:, 0] / S_SCALE
+    p, normals, colors = unaries(c["E"] / S_SCALE, S, c["normal_sum"] / NORMAL_STEPS, c["rgb_sum"], c["count"][:, 0])
+    return p, S, np.asarray(g, np.float64)[rows], normals, colors
+
+
+def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params, *, block: int | None = None,
+                   previous: np.ndarray | None = None, changed_keys: np.ndarray | None = None,
+                   progress=None) -> np.ndarray:
     """Vocabulary index of each occupied voxel, or -1 (no class; exported as 254).
+
+    Labelled a cube of ``block`` voxels a side at a time (:func:`~panovocc_cli.semantics.gsc.
+    consolidate_blocks`: the same labels as the whole map at once, whatever ``block``, default
+    :data:`~panovocc_cli.semantics.gsc.BLOCK`): the working set is a cube's and its halo's, not the map's.
 
     Parameters
     ----------
-    occupied_keys : (n,) int64 voxel keys (lattice.pack_keys)
+    occupied_keys : (n,) int64 strictly increasing voxel keys (lattice.pack_keys)
     channels : the occupied voxels' stored channels, rows aligned with ``occupied_keys`` (a dict, or
-        :class:`OccupiedChannels`, read a block of rows at a time): E (n, C), S (n, 1), normal_sum (n, 3),
+        :class:`OccupiedChannels`, read a cube at a time): E (n, C), S (n, 1), normal_sum (n, 3),
         rgb_sum (n, 3), count (n, 1) int64 (the integer channels of :mod:`.contributors`)
     g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
     params : object with ``use_gsc`` and ``gsc`` (``MapperConfig`` or ``SemanticParams``)
+    previous : (n,) int64, optional, the labels of an export of the same memory before the voxels
+        ``changed_keys`` changed (any channel; a voxel that became or stopped being occupied is one):
+        only the cubes whose halo holds a changed key are labelled again, the others keep ``previous``
+        (:func:`incremental_labels`); the result equals a full labelling bit for bit
+    changed_keys : (k,) int64 voxel keys, with ``previous``
+    progress : callable ``(voxels done)``, optional
 
     Returns
     -------
     labels : (n,) int64 in -1..C-1
     """
     n = len(occupied_keys)
+    block = BLOCK if block is None else int(block)
+    if (previous is None) != (changed_keys is None):
+        raise PanovoccError("label_occupied: previous and changed_keys go together")
     if n == 0:
         return np.zeros(0, np.int64)
     if not isinstance(channels, OccupiedChannels):  # a dict of the occupied rows
         channels = OccupiedChannels(channels, np.arange(n))
-    S = channels["S"][:, 0] / S_SCALE
-    names = ("E", "normal_sum", "rgb_sum", "count")
-    p = normals = colors = None
-    for r in range(0, n, UNARY_CHUNK):  # row by row, so a block at a time gives the same values
-        b = slice(r, r + UNARY_CHUNK)
-        c = channels.rows(b, names)
-        u = unaries(c["E"] / S_SCALE, S[b], c["normal_sum"] / NORMAL_STEPS, c["rgb_sum"], c["count"][:, 0])
-        if p is None:
-            p, normals, colors = (np.empty((n,) + x.shape[1:], x.dtype) for x in u)
-        p[b], normals[b], colors[b] = u
-        del c, u
-    return consolidate(unpack_keys(occupied_keys), p, S, np.asarray(g, np.float64), normals, colors,
-                       use_gsc=params.use_gsc, params=params.gsc)
+    redo = labels = None
+    if previous is not None:
+        labels = np.array(previous, np.int64)
+        if labels.shape != (n,):
+            raise PanovoccError(f"previous labels {labels.shape} must be ({n},)")
+        redo = _touches(np.asarray(changed_keys, np.int64), block, block_halo(params.use_gsc, params.gsc))
+    return consolidate_blocks(np.asarray(occupied_keys, np.int64), lambda rows: gsc_inputs(channels, g, rows),
+                              use_gsc=params.use_gsc, params=params.gsc, block=block, labels=labels, redo=redo,
+                              progress=progress)
 
 
-def apply_labels(grid: Grid, occupied_keys: np.ndarray, labels: np.ndarray, vocab: Sequence[str]) -> Grid:
+def _touches(changed_keys: np.ndarray, block: int, halo: int):
+    """``redo(cube, keys)`` of :func:`~panovocc_cli.semantics.gsc.consolidate_blocks`: True when a changed key
+    lies in the cube or within ``halo`` voxels of it (changed voxels need not be occupied now: one that
+    stopped being occupied changed its neighbours' graph)."""
+    ck = np.unique(changed_keys)
+    cidx = unpack_keys(ck)
+
+    def redo(cube, _keys) -> bool:
+        lo, hi = cube * block - halo, (cube + 1) * block + halo  # the box [lo, hi)
+        first, last = (pack_keys(np.clip(v, 1 - KEY_RANGE, KEY_RANGE - 1)[None])[0] for v in (lo, hi - 1))
+        c = cidx[np.searchsorted(ck, first, "left"):np.searchsorted(ck, last, "right")]  # the box's keys and more
+        return bool(np.any(np.all((c >= lo) & (c < hi), axis=1)))
+
+    return redo
+
+
+def apply_labels(grid: Grid, occupied_keys: np.ndarray, labels: np.ndarray, vocab: Sequence[str], *,
+                 in_place: bool = False) -> Grid:
     """Write class labels into a three-state grid: occupied voxel -> 1 + label (254 where -1).
 
     The grid's class names become ``["empty"] + vocab``; free (0) and unobserved (255) voxels stay.
+    ``in_place``: into ``grid.labels`` itself (an export's own grid: no second grid at once). Written a
+    slice of :data:`CHUNK` voxels at a time.
     """
-    out = grid.labels.copy()
-    if len(occupied_keys):
-        local = unpack_keys(occupied_keys) - grid.index0
-        lab = np.asarray(labels, np.int64)
-        out[tuple(local.T)] = np.where(lab >= 0, lab + 1, OCCUPIED_UNKNOWN_CLASS).astype(np.uint8)
+    out = grid.labels if in_place else grid.labels.copy()
+    lab = np.asarray(labels, np.int64)
+    for sl in _slices(len(occupied_keys)):
+        local = unpack_keys(occupied_keys[sl]) - grid.index0
+        out[tuple(local.T)] = np.where(lab[sl] >= 0, lab[sl] + 1, OCCUPIED_UNKNOWN_CLASS).astype(np.uint8)
     return Grid(out, grid.origin, grid.voxel_size, ["empty"] + list(vocab))
 
 
@@ -266,12 +326,13 @@ def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
 
 
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
-                  vocab=(), semantic=None, origin_index=(0, 0, 0)) -> MapExport:
+                  vocab=(), semantic=None, origin_index=(0, 0, 0), *, previous: Grid | None = None,
+                  changed_keys: np.ndarray | None = None, pieces=None, reader=None) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
     semantic channels, each occupied voxel is labelled by :func:`label_occupied` (GSC or raw
-    argmax, bounded nearest-evidence transfer), -1 -> 254.
+    argmax, bounded nearest-evidence transfer, a cube of the key space at a time), -1 -> 254.
 
     Parameters
     ----------
@@ -282,31 +343,92 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     semantic : object with ``use_gsc`` and ``gsc`` (``MapperConfig``), needed with a vocabulary
     origin_index : (3,) int64, the lattice index the keys are relative to (the map's local origin); the
         grid is placed in the world by it
+    previous : Grid, optional, this export's grid before the voxels ``changed_keys`` ((k,) int64, keys
+        relative to ``origin_index``) changed: an incremental export, which labels again only the cubes
+        whose halo holds a changed voxel (or an occupied voxel ``previous`` does not hold as occupied)
+        and takes the other labels from ``previous``; the same result, bit for bit, as without it
+    pieces, reader : instead of ``keys`` and ``channels`` (None then): the non-zero voxels a slab at a
+        time (:func:`_grid_of_pieces`, e.g. ``VoxelMemory.nonzero_slabs``) and ``reader(ids)``, the
+        occupied voxels' channels (:class:`OccupiedChannels`) from their ids: an export that never holds
+        every non-zero voxel's key at once
     """
-    grid, occ_keys, pos, g = _grid_of(keys, channels, voxel_size, occupancy)
+    if pieces is None:
+        pieces = (lambda: [(keys, channels, None)])
+        reader = (lambda ids: OccupiedChannels(channels, ids))
+    grid, occ_keys, ids, g = _grid_of_pieces(pieces, voxel_size, occupancy)
     # a memory's channels are read at the occupied voxels only, and each when it is needed
-    sub = OccupiedChannels(channels, pos)
+    sub = reader(ids)
+    del ids
     labels = None
-    if len(vocab) and "E" in channels:
-        labels = label_occupied(occ_keys, sub, g, semantic)
-        grid = apply_labels(grid, occ_keys, labels, vocab)
     oi = np.asarray(origin_index, np.int64).reshape(3)
+    if len(vocab) and "E" in sub:
+        before = changed = None
+        if previous is not None and _same_classes(previous, voxel_size, vocab):
+            before = previous_labels(previous, occ_keys, oi)
+            if changed_keys is None:
+                raise PanovoccError("an incremental export needs the changed voxels' keys with the previous grid")
+            changed = np.concatenate([np.asarray(changed_keys, np.int64).reshape(-1),
+                                      occ_keys[before == UNKNOWN_CLASS]])
+        labels = label_occupied(occ_keys, sub, g, semantic, previous=before, changed_keys=changed)
+        grid = apply_labels(grid, occ_keys, labels, vocab, in_place=True)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world
         grid = Grid(grid.labels, index_to_center(grid.index0 + oi, voxel_size), voxel_size, grid.class_names)
     return MapExport(grid, occ_keys, labels, sub, oi)
 
 
-def point_colors(ex: MapExport, voxel_size: float, color: str, vocab=()) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (m, 3) float64 metres (world) and colours (m, 3) uint8 of the occupied voxels.
+def _same_classes(grid: Grid, voxel_size: float, vocab) -> bool:
+    """Whether ``grid`` can hold this export's labels: the same voxel size and class names."""
+    return bool(np.isclose(grid.voxel_size, voxel_size)) and list(grid.class_names) == ["empty"] + list(vocab)
+
+
+def previous_labels(grid: Grid, occupied_keys: np.ndarray, origin_index) -> np.ndarray:
+    """Labels (m,) int64 of the voxels ``occupied_keys`` (relative to ``origin_index``) in a labelled grid:
+    its class - 1, -1 for 254 (occupied without class), :data:`UNKNOWN_CLASS` where the grid does not hold
+    the voxel as occupied (outside it, free or unobserved). A slice at a time."""
+    out = np.empty(len(occupied_keys), np.int64)
+    shape = np.asarray(grid.labels.shape)
+    for sl in _slices(len(occupied_keys)):
+        local = unpack_keys(occupied_keys[sl]) + np.asarray(origin_index, np.int64) - grid.index0
+        inside = np.all((local >= 0) & (local < shape), axis=1)
+        v = np.full(len(local), UNKNOWN, np.int64)
+        v[inside] = grid.labels[tuple(local[inside].T)]
+        out[sl] = np.where((v >= 1) & (v < OCCUPIED_UNKNOWN_CLASS), v - 1,
+                           np.where(v == OCCUPIED_UNKNOWN_CLASS, -1, UNKNOWN_CLASS))
+    return out
+
+
+def point_colors(ex: MapExport, voxel_size: float, color: str, vocab=(), rows=slice(None),
+                 z_range: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (m, 3) float64 metres (world) and colours (m, 3) uint8 of the occupied voxels (or of ``rows``
+    of them; heights are coloured over ``z_range``, the whole map's from :func:`point_chunks`).
 
     color : ``class`` (class colours, grey for no class), ``rgb`` (mean pixel colour, grey where no pixel
         fell in the voxel) or ``height``; ``class`` / ``rgb`` fall back to height without semantic channels.
     """
-    pts, cols = occupied_points_and_colors(ex.occupied_keys, voxel_size, None, ex.origin_index)
+    pts = index_to_center(unpack_keys(ex.occupied_keys[rows]) + ex.origin_index, voxel_size)
     if color == "class" and ex.labels is not None:
-        cols = class_colors(ex.labels, vocab)
+        cols = class_colors(ex.labels[rows], vocab)
     elif color == "rgb" and "rgb_sum" in ex.channels:
-        cnt = ex.channels["count"][:, :1]
-        rgb = np.clip(np.rint(ex.channels["rgb_sum"] / np.maximum(cnt, 1)), 0, 255).astype(np.uint8)
+        ch = ex.channels
+        c = ch.rows(rows, ("count", "rgb_sum")) if hasattr(ch, "rows") else {k: ch[k][rows] for k in ("count", "rgb_sum")}
+        cnt = c["count"][:, :1]
+        rgb = np.clip(np.rint(c["rgb_sum"] / np.maximum(cnt, 1)), 0, 255).astype(np.uint8)
         cols = np.where(cnt > 0, rgb, np.array(UNCLASSED_COLOR, np.uint8))
+    else:
+        cols = height_colors(pts[:, 2], z_range)
     return pts, cols
+
+
+def point_chunks(ex: MapExport, voxel_size: float, color: str, vocab=()):
+    """:func:`point_colors` of all occupied voxels a slice of :data:`CHUNK` at a time (the same values:
+    heights coloured over the whole map's range), for a point cloud written without its whole arrays."""
+    n = len(ex.occupied_keys)
+    z_range = None
+    if n:
+        lo, hi = np.iinfo(np.int64).max, np.iinfo(np.int64).min
+        for sl in _slices(n):
+            z = unpack_index(ex.occupied_keys[sl])[2]
+            lo, hi = min(lo, int(z.min())), max(hi, int(z.max()))
+        z_range = tuple(index_to_center(np.array([lo, hi]) + ex.origin_index[2], voxel_size))
+    for sl in _slices(n):
+        yield point_colors(ex, voxel_size, color, vocab, sl, z_range)

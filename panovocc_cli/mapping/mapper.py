@@ -53,8 +53,8 @@ from ..io import mapstore
 from ..io.poses import write_poses
 from .config import MapperConfig
 from .contributors import geometry_delta, semantic_channels, semantic_delta
-from .export import MapExport, export_memory
-from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, VoxelMemory
+from .export import MapExport, OccupiedChannels, export_memory
+from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, NonzeroChannels, VoxelMemory
 from .rpu import DeltaStore, ReversibleMemory, has_store
 
 
@@ -283,11 +283,16 @@ class Mapper:
 
     # -- outputs ---------------------------------------------------------------------------------
     @_locked
-    def export(self) -> MapExport:
-        """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory."""
-        keys, ch = self.memory.nonzero()
-        return export_memory(keys, ch, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
-                             self.config, origin_index=self.config.origin_index())
+    def export(self, previous: Grid | None = None, changed_keys: np.ndarray | None = None) -> MapExport:
+        """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory.
+        ``previous``: the grid of an export before the voxels ``changed_keys`` changed (an incremental
+        export, the same result: :func:`.export.export_memory`)."""
+        mem = self.memory  # read a slab of the key space at a time (never every non-zero voxel's key at once)
+        pieces = (lambda: ((keys, NonzeroChannels(mem, loc), loc) for keys, loc in mem.nonzero_slabs()))
+        reader = (lambda loc: OccupiedChannels(NonzeroChannels(mem, loc), np.arange(len(loc))))
+        return export_memory(None, None, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
+                             self.config, origin_index=self.config.origin_index(), previous=previous,
+                             changed_keys=changed_keys, pieces=pieces, reader=reader)
 
     def prediction(self) -> Grid:
         """The semantic occupancy grid: 1..C vocabulary classes (254 occupied without class), 0 free,

@@ -889,6 +889,36 @@ class VoxelMemory:
         keys, loc = self._nonzero
         return keys, NonzeroChannels(self, loc)
 
+    def nonzero_slabs(self, max_voxels: int = 1 << 18):
+        """:meth:`nonzero` a slab of the key space at a time: yields ``(keys, locations)`` of the voxels with
+        a non-zero channel whose blocks lie in a run of block x-indices of at most about ``max_voxels``
+        allocated voxels (one block x-index at least), the slabs in key order and each sorted, so that
+        their concatenation is :meth:`nonzero`'s keys. For :class:`NonzeroChannels` (``NonzeroChannels(memory,
+        locations)``); the temporaries are a slab's, not the memory's."""
+        bkeys = self._block_keys[:self.n_blocks]
+        if len(bkeys) == 0:
+            return
+        order = np.argsort(bkeys, kind="stable").astype(np.int64)  # block keys sort x-major like voxel keys
+        bx, by, _ = unpack_index(bkeys[order])
+        bx, by = np.ascontiguousarray(bx, np.int64), np.ascontiguousarray(by, np.int64)
+        starts = np.flatnonzero(np.r_[True, bx[1:] != bx[:-1]])  # the first block of each block x-index
+        ends = np.r_[starts[1:], len(order)]
+        per_slab = max(int(max_voxels) // BLOCK_VOXELS, 1)
+        a = 0
+        while a < len(starts):
+            b = a + 1
+            while b < len(starts) and ends[b] - starts[a] <= per_slab:
+                b += 1
+            b0, b1 = int(starts[a]), int(ends[b - 1])
+            loc = np.empty((b1 - b0) * BLOCK_VOXELS, np.int64)  # in key order as scanned: no sort
+            cnt = _ordered_nonzero(order, bx, by, self._geo, self._page_of, self._pages, self._rows,
+                                   bool(self.sparse_width), b0, b1, 0, BLOCK, loc)
+            loc = loc[:cnt].copy()
+            keys = np.empty(cnt, np.int64)
+            _keys_at(self._block_keys, loc, keys)
+            yield keys, loc
+            a = b
+
     def to_arrays(self, sparse: bool = False) -> dict:
         """The canonical on-disk form (see docs/mapping.md): equal sums give equal arrays. ``sparse``: the
         sparse group's channels as :class:`~panovocc_cli.io.mapstore.SparseRows` over the voxels that hold

@@ -42,7 +42,7 @@ from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
 from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig,
                      MapperConfig, ReviseConfig, SemanticParams, check_key_reach)
-from .export import point_colors
+from .export import point_chunks
 from .mapper import Mapper
 from .rpu import has_store
 
@@ -207,8 +207,8 @@ def write_exports(out: Path, mapper: Mapper, ply_color: str, ex=None) -> dict:
     if ex is None:
         ex = mapper.export()
     write_grid(out / "prediction.npz", ex.grid)
-    pts, cols = point_colors(ex, mapper.config.geometry.voxel_size, ply_color, mapper.config.vocab)
-    write_ply_points(out / "map.ply", pts, cols)
+    chunks = point_chunks(ex, mapper.config.geometry.voxel_size, ply_color, mapper.config.vocab)
+    write_ply_points(out / "map.ply", chunks, count=len(ex.occupied_keys))  # a slice of the points at a time
     return ex.summary()
 
 

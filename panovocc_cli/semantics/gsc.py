@@ -34,13 +34,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PanovoccError
-from ..geometry.lattice import pack_keys
+from ..geometry.lattice import KEY_RANGE, pack_index, pack_keys, unpack_index, unpack_keys
 
 UNKNOWN = -1
 EDGE_CHUNK = 1 << 20
 """Edges whose affinities are computed at a time (bounds the temporaries of a large map's export)."""
-UNARY_CHUNK = 1 << 18
-"""Voxels whose unaries are computed at a time (:func:`unaries`)."""
 
 
 @dataclass(frozen=True)
@@ -281,9 +279,27 @@ def _diffuse_sorted(idx, p, S, g, normals, colors, params: GSCParams) -> np.ndar
     return q
 
 
+def transfer_offsets(max_dist_vox: float) -> np.ndarray:
+    """The lattice offsets (k, 3) int64 within ``max_dist_vox`` voxels (Euclidean, the origin left out) in the
+    order the nearest-evidence transfer tries them: nearer first, equidistant ones by their key offset
+    (x, then y, then z: the smallest key among equidistant voxels wins, :func:`nearest_evidence_transfer`)."""
+    r = int(np.floor(max(float(max_dist_vox), 0.0) + 1e-9))
+    d2_max = (float(max_dist_vox) + 1e-9) ** 2
+    a = np.arange(-r, r + 1)
+    o = np.stack(np.meshgrid(a, a, a, indexing="ij"), -1).reshape(-1, 3).astype(np.int64)
+    d2 = (o * o).sum(1)
+    o, d2 = o[(d2 > 0) & (d2 <= d2_max)], d2[(d2 > 0) & (d2 <= d2_max)]
+    return o[np.lexsort((o[:, 2], o[:, 1], o[:, 0], d2))]
+
+
 def nearest_evidence_transfer(occupied_idx: np.ndarray, labels: np.ndarray, has_evidence: np.ndarray,
                               max_dist_vox: float = 2.0) -> np.ndarray:
     """Label voxels without direct semantic support from the nearest voxel with evidence, within a bound.
+
+    Among equidistant voxels with evidence the one with the smallest key (:func:`~panovocc_cli.geometry.
+    lattice.pack_keys`: x, then y, then z) gives the label, so the result depends neither on the order the
+    voxels come in nor on which other voxels are given (a block of a map labels its voxels as the whole map
+    does, :func:`consolidate_blocks`).
 
     Parameters
     ----------
@@ -296,8 +312,6 @@ def nearest_evidence_transfer(occupied_idx: np.ndarray, labels: np.ndarray, has_
     -------
     labels : (n,) int64; voxels without evidence and none within the bound get -1 (unknown)
     """
-    from scipy.spatial import cKDTree
-
     idx = _check_index(occupied_idx)
     lab = np.asarray(labels, dtype=np.int64)
     has = np.asarray(has_evidence, dtype=bool)
@@ -308,13 +322,23 @@ def nearest_evidence_transfer(occupied_idx: np.ndarray, labels: np.ndarray, has_
     src = np.flatnonzero(has)
     if need.size == 0 or src.size == 0 or max_dist_vox <= 0:
         return out
-    # Build the tree in lattice-key order so ties between equidistant sources do not depend on the
-    # order the voxels were given in.
-    src = src[np.argsort(pack_keys(idx[src]), kind="stable")]
-    tree = cKDTree(idx[src].astype(np.float64), balanced_tree=False, compact_nodes=False)
-    dist, nn = tree.query(idx[need].astype(np.float64), k=1, distance_upper_bound=float(max_dist_vox) + 1e-9)
-    ok = np.isfinite(dist)
-    out[need[ok]] = lab[src[nn[ok]]]
+    skeys = pack_keys(idx[src])
+    if not _increasing(skeys):
+        order = np.argsort(skeys, kind="stable")
+        skeys, src = skeys[order], src[order]
+    slab = lab[src]
+    q = idx[need]
+    todo = np.arange(need.size)  # rows of ``need`` not labelled yet
+    for o in transfer_offsets(max_dist_vox):  # nearest first, then the smallest key: the first hit wins
+        if todo.size == 0:
+            break
+        c = q[todo] + o
+        inside = np.all(np.abs(c) < KEY_RANGE, axis=1)  # a key outside the lattice holds no voxel
+        ck = pack_index(c[:, 0], c[:, 1], c[:, 2])
+        pos = np.minimum(np.searchsorted(skeys, ck), skeys.size - 1)
+        hit = inside & (skeys[pos] == ck)
+        out[need[todo[hit]]] = slab[pos[hit]]
+        todo = todo[~hit]
     return out
 
 
@@ -344,3 +368,100 @@ def consolidate(occupied_idx: np.ndarray, p: np.ndarray, S: np.ndarray, g: np.nd
     # Without direct evidence: labelled only within the transfer bound (same set for both variants);
     # with GSC, the diffused distribution decides where diffusion reached the voxel.
     return np.where(~has & (transferred >= 0) & reached, lab, transferred)
+
+
+BLOCK = 64
+"""Edge, in voxels, of the cubes of the key space :func:`consolidate_blocks` labels one at a time."""
+
+
+def block_halo(use_gsc: bool, params: GSCParams) -> int:
+    """How far, in voxels along each axis, a voxel's label can depend on other voxels: the diffusion's
+    iterations (one 6-neighbour step each) plus the nearest-evidence transfer's bound. A cube of the key
+    space with this margin around it labels its voxels exactly as the whole map does."""
+    k = max(int(params.iterations), 0) if use_gsc else 0
+    return k + int(np.floor(max(float(params.max_dist_vox), 0.0) + 1e-9))
+
+
+def key_blocks(keys: np.ndarray, block: int, halo: int):
+    """The cubes of ``block`` voxels a side that hold some of ``keys`` ((n,) int64, strictly increasing), in
+    key order: for each, ``(cube, rows, inner)``: the cube's lattice index (3,) int64 (voxel index //
+    block), the positions (sorted) of the keys in the cube or within ``halo`` voxels of it (Chebyshev),
+    and which of those lie in the cube itself (bool). Temporaries: the keys of one slab of ``block + 2
+    halo`` voxels along x."""
+    block, halo = int(block), int(halo)
+    if block < 1 or halo < 0:
+        raise PanovoccError(f"a block needs an edge >= 1 voxel and a halo >= 0, got {block} and {halo}")
+    n = len(keys)
+    if n == 0:
+        return
+    x = unpack_index(keys[0])[0]
+    x_last = unpack_index(keys[-1])[0]
+    bx = x // block
+    while bx * block <= x_last:
+        lo = np.searchsorted(keys, pack_index(bx * block - halo, -KEY_RANGE, -KEY_RANGE)) \
+            if bx * block - halo > -KEY_RANGE else 0
+        hi = np.searchsorted(keys, pack_index((bx + 1) * block + halo, -KEY_RANGE, -KEY_RANGE)) \
+            if (bx + 1) * block + halo < KEY_RANGE else n
+        idx = unpack_keys(keys[lo:hi])
+        cube = idx // block
+        in_x = cube[:, 0] == bx
+        yz = np.unique(cube[in_x, 1:], axis=0)  # the cubes of this slab that hold keys, in key order
+        for by, bz in yz:
+            m = ((idx[:, 1] >= by * block - halo) & (idx[:, 1] < (by + 1) * block + halo)
+                 & (idx[:, 2] >= bz * block - halo) & (idx[:, 2] < (bz + 1) * block + halo))
+            rows = np.flatnonzero(m)
+            inner = in_x[rows] & (cube[rows, 1] == by) & (cube[rows, 2] == bz)
+            yield np.array([bx, by, bz], np.int64), lo + rows, inner
+        # the next cube along x that holds a key
+        nxt = np.searchsorted(keys, pack_index((bx + 1) * block, -KEY_RANGE, -KEY_RANGE)) \
+            if (bx + 1) * block < KEY_RANGE else n
+        if nxt >= n:
+            break
+        bx = unpack_index(keys[nxt])[0] // block
+
+
+def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params: GSCParams = GSCParams(),
+                       block: int = BLOCK, labels: np.ndarray | None = None, redo=None,
+                       progress=None) -> np.ndarray:
+    """:func:`consolidate` of a whole map a cube of the key space at a time, bit for bit the same labels.
+
+    Each cube of ``block`` voxels a side is consolidated with the voxels within :func:`block_halo` of it
+    (the diffusion's iterations plus the transfer bound): a voxel's label depends on nothing farther, every
+    per-voxel and per-edge value is computed by the same float operations in the same order as over the
+    whole map (neighbours summed in key order), and the transfer's tie rule does not depend on which
+    voxels are given. So the labels do not depend on ``block``, and the working set is a cube's, not the map's.
+
+    Parameters
+    ----------
+    keys : (n,) int64 strictly increasing voxel keys (:func:`~panovocc_cli.geometry.lattice.pack_keys`)
+    inputs : callable ``rows -> (p, S, g, normals, colors)``, the :func:`consolidate` inputs of the voxels
+        at the sorted positions ``rows`` (see :func:`unaries`)
+    use_gsc, params : as :func:`consolidate`
+    block : int, cube edge in voxels
+    labels : (n,) int64 to write into (and return), optional; with ``redo``, the labels of a previous
+        consolidation, kept for every cube not redone
+    redo : callable ``(cube lattice index (3,), keys of the cube and its halo) -> bool``, optional: which
+        cubes to consolidate again (an incremental export: those whose halo holds a changed voxel)
+    progress : callable ``(voxels done)``, optional, called after each cube
+
+    Returns
+    -------
+    labels : (n,) int64, vocabulary index or -1
+    """
+    n = len(keys)
+    if labels is None:
+        if redo is not None:
+            raise PanovoccError("consolidate_blocks: redo needs the previous labels")
+        labels = np.empty(n, np.int64)
+    elif labels.shape != (n,):
+        raise PanovoccError(f"labels {labels.shape} must be ({n},)")
+    halo = block_halo(use_gsc, params)
+    for cube, rows, inner in key_blocks(keys, block, halo):
+        if redo is None or redo(cube, keys[rows]):
+            p, S, g, normals, colors = inputs(rows)
+            lab = consolidate(unpack_keys(keys[rows]), p, S, g, normals, colors, use_gsc=use_gsc, params=params)
+            labels[rows[inner]] = lab[inner]
+            del p, S, g, normals, colors, lab
+        if progress is not None:
+            progress(int(inner.sum()))
+    return labels

@@ -277,9 +277,9 @@ def test_cli_unlabelled_sequence_needs_a_segmenter(tmp_path, capsys):
 
 
 def test_the_export_a_block_at_a_time_equals_one_pass(default_map, monkeypatch):
-    """The labelled export reads the occupied voxels' channels and computes GSC's unaries and edge affinities
-    a block at a time (issue 21: a building's export must not hold every channel of every voxel at once):
-    with blocks of a few voxels it gives the same labels, bit for bit, as with one block, and its channels
+    """The labelled export reads the occupied voxels' channels and runs GSC a cube of the key space at a time
+    (issue 21: a building's export must not hold every channel of every voxel at once): with cubes of
+    3 voxels (and their halo) it gives the same labels, bit for bit, as with the default, and its channels
     are read on demand as copies (never views that keep a whole channel group alive)."""
     import panovocc_cli.mapping.export as export
     import panovocc_cli.semantics.gsc as gsc
@@ -289,7 +289,7 @@ def test_the_export_a_block_at_a_time_equals_one_pass(default_map, monkeypatch):
     try:
         one = m.export()
         assert one.labels is not None and (one.labels >= 0).sum() > 100
-        monkeypatch.setattr(export, "UNARY_CHUNK", 7)
+        monkeypatch.setattr(export, "BLOCK", 3)
         monkeypatch.setattr(export, "CHUNK", 13)
         monkeypatch.setattr(gsc, "EDGE_CHUNK", 5)
         small = m.export()
