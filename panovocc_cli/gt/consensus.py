@@ -194,8 +194,9 @@ def _density_kernel(P, ok, axis, depth, o, h, i0, shape, k2, cnt0, off0, den0, c
             half = min(half, 4 * FINE)
             for a in range(3):
                 if mask & (1 << a):
-                    _deposit_axis(P, v, u, a, 1 if o[a] > P[v, u, a] else 0, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2,
-                                  off2, den2)
+                    side = 1 if o[a] > P[v, u, a] else 0  # the camera above the point along a, or below
+                    _deposit_axis(P, v, u, a, side, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1,
+                                  cnt2, off2, den2)
 
 
 @nb.njit(cache=True, inline="always")
@@ -330,8 +331,8 @@ def _spans(S, F, a, i0a, shape, h, max_span, out_vox, out_owner):
     within one voxel of its own position (a side with none mirrors the other side; a column with neither:
     flat that way); the surface over the footprint spans the sum over the two lateral axes of each one's
     lowest and highest reach, and a slab seen from both sides at least from its lower to its upper face.
-    The voxels that span reaches ``SPAN_MARGIN`` into, other than the mode's own, at most ``max_span`` either side of it, go to
-    ``out_vox`` with their mode voxel in ``out_owner``; returns how many."""
+    The voxels that span reaches ``SPAN_MARGIN`` into, other than the mode's own, at most ``max_span``
+    either side of it, go to ``out_vox`` with their mode voxel in ``out_owner``; returns how many."""
     n = 0
     st = (shape[1] * shape[2], shape[2], 1)
     i = np.empty(3, np.int64)
@@ -550,7 +551,8 @@ class ConsensusLift:
         axis = np.empty(depth.shape, np.int8)
         _normal_axes(P, ok, depth, NORMAL_STEP, axis)
         c, o, d = self._cnt, self._off, self._den
-        _density_kernel(P, ok, axis, depth, T[:3, 3].copy(), self.h, self.index0, np.asarray(self.shape, np.int64), self.tol2 * KERNEL_R2,
+        _density_kernel(P, ok, axis, depth, T[:3, 3].copy(), self.h, self.index0, np.asarray(self.shape, np.int64),
+                        self.tol2 * KERNEL_R2,
                         c[0], o[0], d[0], c[1], o[1], d[1], c[2], o[2], d[2])
         self.frames += 1
 
