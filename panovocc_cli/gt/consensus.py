@@ -71,8 +71,8 @@ KERNEL_R2 = 1.5  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_t
 SPAN_MAX = 1  # a surface's span reaches at most this many voxels either side of its mode's voxel (2b)
 SPAN_MARGIN = 0.02  # voxels: a span counts a neighbouring voxel when it reaches this far into it (2b)
 # (3 axes x FINE bins x (2 sides x (int32 count + int64 offset) + int64 density)) + 3 float64 surface positions
-# + 6 int32 counts/stamps + bools (the two faces' positions, 3 x 2 float64, live while the counts are freed)
-BYTES_PER_VOXEL = 3 * FINE * 32 + 3 * 8 + 6 * 4 + 2
+# + 3 x 2 float64 positions of the two sides (while settling) + 6 int32 counts/stamps + bools
+BYTES_PER_VOXEL = 3 * FINE * 32 + 3 * 8 + 3 * 2 * 8 + 6 * 4 + 2
 
 
 @nb.njit(cache=True)
