@@ -19,7 +19,7 @@ DEFAULT_MIN_FRAMES = 2
 """A consensus surface voxel is occupied when at least this many frames' points support it (docs/gt.md)."""
 DEFAULT_MIN_POINTS = 3
 """A surface mode of a column needs at least this many points within one voxel of it (docs/gt.md)."""
-DEFAULT_MIN_HIT_RATIO = 0.2
+DEFAULT_MIN_HIT_RATIO = 0.25
 """A consensus surface voxel is occupied when the frames supporting it are at least this fraction of the frames
 supporting it or seeing through it (docs/gt.md)."""
 DEFAULT_SURFACE_TOL = 0.08

@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 SWEEP = ({}, {"min_points": 2}, {"min_points": 5}, {"min_frames": 1}, {"min_frames": 3}, {"min_hit_ratio": 0.0},
-         {"min_hit_ratio": 0.1}, {"min_hit_ratio": 0.35}, {"surface_tol_r2": 0.002}, {"surface_tol_r2": 0.008},
-         {"surface_tol": 0.04})
+         {"min_hit_ratio": 0.1}, {"min_hit_ratio": 0.2}, {"min_hit_ratio": 0.3}, {"min_hit_ratio": 0.35},
+         {"min_hit_ratio": 0.4}, {"surface_tol_r2": 0.002}, {"surface_tol_r2": 0.008}, {"surface_tol": 0.04})
 
 
 def _row_md(cols, rows) -> str:

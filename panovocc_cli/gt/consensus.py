@@ -10,7 +10,8 @@ benchmark must not be built by the method it ranks). On the global lattice of vo
    (the cross product of the image tangents ``NORMAL_STEP`` pixels either side, one-sided across a depth
    jump). The point falls in the *column* of voxels along ``a`` through its other two voxel indices, at
    a position counted in ``FINE`` bins a voxel (integer counts, and the points' offsets in fixed point:
-   sums that do not depend on the frames' order).
+   sums that do not depend on the frames' order), separately for the points seen from below and from above
+   along the column (the camera centre's side of the point).
 2. **The consensus (robust statistics per column).** Along every column the counts are smoothed by a
    triangle one voxel either side; a bin is a *surface mode* when it is the largest within one voxel
    either side (the first of a plateau) and at least ``min_points`` points lie within one voxel of it.
@@ -18,6 +19,16 @@ benchmark must not be built by the method it ranks). On the global lattice of vo
    voxel, so one frame's outliers and the noise tails farther off do not move it), and the surface voxel
    is the one that position falls in (a position on a voxel face goes to the voxel above it, as the mesh
    ground truth does). One column gives one voxel per surface, however thick the noise spreads the points.
+2b. **What the surface spans besides that voxel.** A surface that is not square to its axis, or a thin slab,
+   crosses more than one voxel of its column (a door leaf 4 cm thick across a voxel face, a pleated
+   curtain, a tilted leaf), and the mesh truth counts every voxel a surface passes through. Towards each
+   of the four lateral neighbour columns the surface reaches half-way to that column's nearest mode within
+   one voxel of its own position (a side with none mirrors the opposite side; none either way: flat that
+   way); the reaches of the two lateral axes add up (the footprint's corners). A mode whose points seen
+   from above lie higher than those seen from below is a slab seen from both sides: it spans from its lower
+   face's position to its upper face's. The voxels the span reaches at least ``SPAN_MARGIN`` voxels into,
+   other than the mode's own (at most ``SPAN_MAX`` either side), are *span voxels* of that mode (the margin:
+   a column where two surfaces meet has its mode pulled a few millimetres off by the other's points).
 3. **Every ray's verdict (pass 2, every frame).** A point *supports* the surface whose consensus position
    is nearest along that surface's axis within ``tol(r) = surface_tol + surface_tol_r2 r²`` (r its range,
    metres): range noise grows with range. A ray (one every ``max(1, W // 512)`` pixels on both axes) is
@@ -25,10 +36,12 @@ benchmark must not be built by the method it ranks). On the global lattice of vo
    it crosses *sees through* when the ray crosses that surface's plane inside the voxel and its point lies
    more than ``tol(r)`` behind the plane. A surface voxel is *occupied* when at least ``min_frames``
    frames support it and the supporting frames are at least ``min_hit_ratio`` of the frames supporting or
-   seeing through it: free space carved by every ray overrides a mode that noise or one frame made.
+   seeing through it: free space carved by every ray overrides a mode that noise or one frame made. The
+   span voxels of an occupied mode voxel are occupied with it.
 4. **Labels.** As before: the annotated frames vote (one vote per frame per voxel, split over its pixels'
    classes) — each pixel in the surface voxel its point supports, so a noisy point still votes where its
-   surface is; the nearest-label transfer within ``label_radius`` (:func:`.lifted.label_grid`).
+   surface is; a span voxel (not a mode voxel itself) takes the votes of the mode voxels that span it; the
+   nearest-label transfer within ``label_radius`` (:func:`.lifted.label_grid`).
 
 Every frame contributes to the same integer sums whatever the order, so the trajectory run backwards
 gives the same grid, byte for byte.
@@ -55,9 +68,11 @@ NMS = FINE - 1  # a mode is the largest density within this many bins either sid
 DIP = 0.5  # two modes are one surface unless the density between them dips below this fraction of the smaller
 POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
 KERNEL_R2 = 1.5  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
-# (3 axes x FINE bins x (int32 count + int64 offset + int64 density)) + 3 float64 surface positions
-# + 6 int32 counts/stamps + bools
-BYTES_PER_VOXEL = 3 * FINE * 20 + 3 * 8 + 6 * 4 + 2
+SPAN_MAX = 1  # a surface's span reaches at most this many voxels either side of its mode's voxel (2b)
+SPAN_MARGIN = 0.02  # voxels: a span counts a neighbouring voxel when it reaches this far into it (2b)
+# (3 axes x FINE bins x (2 sides x (int32 count + int64 offset) + int64 density)) + 3 float64 surface positions
+# + 3 x 2 float64 positions of the two sides (while settling) + 6 int32 counts/stamps + bools
+BYTES_PER_VOXEL = 3 * FINE * 32 + 3 * 8 + 3 * 2 * 8 + 6 * 4 + 2
 
 
 @nb.njit(cache=True)
@@ -144,10 +159,11 @@ def _normal_axes(P, ok, depth, step, axis):
 
 
 @nb.njit(cache=True, inline="always")
-def _deposit(cnt, off, den, q, loc, n_bins, stride, f, fb, half):
-    """One point at fine position ``f`` (bin ``fb``, local ``loc``) of a column whose bin ``loc`` is ``q``."""
-    cnt[q] += 1
-    off[q] += int((f - fb) * OFFSET_UNITS + 0.5)
+def _deposit(cnt, off, den, q, side, loc, n_bins, stride, f, fb, half):
+    """One point at fine position ``f`` (bin ``fb``, local ``loc``) of a column whose bin ``loc`` is ``q``,
+    seen from ``side`` (1: the camera above it along the column, 0: below)."""
+    cnt[side, q] += 1
+    off[side, q] += int((f - fb) * OFFSET_UNITS + 0.5)
     m = (half + 1) * (half + 1)
     for j in range(-half, half + 1):
         b = loc + j
@@ -156,7 +172,7 @@ def _deposit(cnt, off, den, q, loc, n_bins, stride, f, fb, half):
 
 
 @nb.njit(cache=True)
-def _density_kernel(P, ok, axis, depth, h, i0, shape, k2, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
+def _density_kernel(P, ok, axis, depth, o, h, i0, shape, k2, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
     """Pass 1: each point with a normal axis counted in its column's fine bin and spread over the bins of
     its range-dependent triangle (module docstring, 1)."""
     H, W = ok.shape
@@ -178,12 +194,13 @@ def _density_kernel(P, ok, axis, depth, h, i0, shape, k2, cnt0, off0, den0, cnt1
             half = min(half, 4 * FINE)
             for a in range(3):
                 if mask & (1 << a):
-                    _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2,
-                                  off2, den2)
+                    side = 1 if o[a] > P[v, u, a] else 0  # the camera above the point along a, or below
+                    _deposit_axis(P, v, u, a, side, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1,
+                                  cnt2, off2, den2)
 
 
 @nb.njit(cache=True, inline="always")
-def _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
+def _deposit_axis(P, v, u, a, side, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, off1, den1, cnt2, off2, den2):
     """Point (v, u) into its column along axis ``a``."""
     f = P[v, u, a] / h * FINE
     fb = int(np.floor(f))
@@ -193,13 +210,13 @@ def _deposit_axis(P, v, u, a, idx, h, i0, shape, half, cnt0, off0, den0, cnt1, o
     n_bins = shape[a] * FINE
     if a == 0:
         q = (loc * shape[1] + idx[1]) * shape[2] + idx[2]
-        _deposit(cnt0, off0, den0, q, loc, n_bins, shape[1] * shape[2], f, fb, half)
+        _deposit(cnt0, off0, den0, q, side, loc, n_bins, shape[1] * shape[2], f, fb, half)
     elif a == 1:
         q = (idx[0] * (shape[1] * FINE) + loc) * shape[2] + idx[2]
-        _deposit(cnt1, off1, den1, q, loc, n_bins, shape[2], f, fb, half)
+        _deposit(cnt1, off1, den1, q, side, loc, n_bins, shape[2], f, fb, half)
     else:
         q = (idx[0] * shape[1] + idx[1]) * (shape[2] * FINE) + loc
-        _deposit(cnt2, off2, den2, q, loc, n_bins, 1, f, fb, half)
+        _deposit(cnt2, off2, den2, q, side, loc, n_bins, 1, f, fb, half)
 
 
 @nb.njit(cache=True, inline="always")
@@ -306,8 +323,73 @@ def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S
 
 
 @nb.njit(cache=True)
-def _row_modes(den, cnt, off, min_points, out_bin, out_pos, out_str):
-    """Modes of one column's bins (module docstring, 2); returns how many were written to ``out_*``."""
+def _spans(S, F, a, i0a, shape, h, max_span, out_vox, out_owner):
+    """Voxels along axis ``a`` that the surface of each mode voxel crosses besides its own (module docstring,
+    2b). ``S`` (n,) the modes' positions along ``a`` (metres, NaN: none), ``F`` (n, 2) the positions of
+    their points seen from below / from above (NaN: too few), ``i0a`` the box's first lattice index along
+    ``a``. Towards each lateral neighbour column the surface reaches half-way to that column's nearest mode
+    within one voxel of its own position (a side with none mirrors the other side; a column with neither:
+    flat that way); the surface over the footprint spans the sum over the two lateral axes of each one's
+    lowest and highest reach, and a slab seen from both sides at least from its lower to its upper face.
+    The voxels that span reaches ``SPAN_MARGIN`` into, other than the mode's own, at most ``max_span``
+    either side of it, go to ``out_vox`` with their mode voxel in ``out_owner``; returns how many."""
+    n = 0
+    st = (shape[1] * shape[2], shape[2], 1)
+    i = np.empty(3, np.int64)
+    d = np.empty(2)
+    got = np.empty(2, np.bool_)
+    for q in range(S.shape[0]):
+        s = S[q]
+        if not np.isfinite(s):
+            continue
+        i[0], i[1], i[2] = q // st[0], (q // st[1]) % shape[1], q % shape[2]
+        lo = 0.0
+        hi = 0.0
+        for b in ((a + 1) % 3, (a + 2) % 3):
+            for side in range(2):
+                got[side] = False
+                j = i[b] + (2 * side - 1)
+                if j < 0 or j >= shape[b]:
+                    continue
+                best = h
+                for k in range(max(i[a] - 1, 0), min(i[a] + 2, shape[a])):
+                    t = S[q + (j - i[b]) * st[b] + (k - i[a]) * st[a]]
+                    if np.isfinite(t) and abs(t - s) <= best:
+                        best = abs(t - s)
+                        d[side] = t - s
+                        got[side] = True
+            if not got[0] and not got[1]:
+                continue
+            if not got[0]:
+                d[0] = -d[1]
+            elif not got[1]:
+                d[1] = -d[0]
+            lb = 0.0
+            hb = 0.0
+            for side in range(2):
+                lb = min(lb, 0.5 * d[side])
+                hb = max(hb, 0.5 * d[side])
+            lo += lb
+            hi += hb
+        if F[q, 1] > F[q, 0]:  # a slab seen from both sides: its lower face seen from below, its upper from above
+            lo = min(lo, F[q, 0] - s)
+            hi = max(hi, F[q, 1] - s)
+        k0 = i[a]
+        kl = int(np.floor((s + lo) / h + SPAN_MARGIN + GT_BOUNDARY_EPS)) - i0a
+        kh = int(np.floor((s + hi) / h - SPAN_MARGIN - GT_BOUNDARY_EPS)) - i0a
+        for k in range(max(kl, k0 - max_span, 0), min(kh, k0 + max_span, shape[a] - 1) + 1):
+            if k != k0:
+                out_vox[n] = q + (k - k0) * st[a]
+                out_owner[n] = q
+                n += 1
+    return n
+
+
+@nb.njit(cache=True)
+def _row_modes(den, cnt, off, min_points, out_bin, out_pos, out_str, out_side):
+    """Modes of one column's bins (module docstring, 2); returns how many were written to ``out_*``.
+    ``cnt``, ``off`` (2, L): per side the points seen from; ``out_side`` (L, 2) the position of each side's
+    points of the window (NaN: fewer than ``min_points``)."""
     L = den.shape[0]
     keep = np.empty(L, np.int64)
     nk = 0
@@ -338,9 +420,15 @@ def _row_modes(den, cnt, off, min_points, out_bin, out_pos, out_str):
         b = keep[i]
         c = 0
         s = 0
-        for j in range(max(b - WINDOW, 0), min(b + WINDOW + 1, L)):
-            c += cnt[j]
-            s += cnt[j] * j * OFFSET_UNITS + off[j]
+        for side in range(2):
+            cs = 0
+            ss = 0
+            for j in range(max(b - WINDOW, 0), min(b + WINDOW + 1, L)):
+                cs += cnt[side, j]
+                ss += cnt[side, j] * j * OFFSET_UNITS + off[side, j]
+            out_side[m, side] = ss / (cs * float(OFFSET_UNITS)) if cs >= min_points and cs > 0 else np.nan
+            c += cs
+            s += ss
         if c < min_points or c == 0:
             continue
         out_bin[m] = b
@@ -357,17 +445,22 @@ def _all_modes(den, cnt, off, min_points):
     bins = []
     pos = []
     strength = []
+    sides = []
     ob = np.empty(L, np.int64)
     op = np.empty(L)
     os_ = np.empty(L, np.int64)
+    osd = np.empty((L, 2))
     for r in range(R):
-        m = _row_modes(den[r], cnt[r], off[r], min_points, ob, op, os_)
+        m = _row_modes(den[r], cnt[:, r], off[:, r], min_points, ob, op, os_, osd)
         for i in range(m):
             rows.append(r)
             bins.append(ob[i])
             pos.append(op[i])
             strength.append(os_[i])
-    return np.array(rows, np.int64), np.array(bins, np.int64), np.array(pos), np.array(strength, np.int64)
+            sides.append(osd[i, 0])
+            sides.append(osd[i, 1])
+    return (np.array(rows, np.int64), np.array(bins, np.int64), np.array(pos), np.array(strength, np.int64),
+            np.array(sides).reshape(-1, 2))
 
 
 def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, min_points: int):
@@ -375,8 +468,9 @@ def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, m
 
     Parameters
     ----------
-    cnt, off, den : point counts, summed fixed-point offsets and smoothed density per fine bin, shaped like
-        the box with ``FINE`` bins a voxel along ``axis``
+    cnt, off : (2, ...) point counts and summed fixed-point offsets per fine bin of the points seen from below
+        (0) and from above (1) along ``axis``; den : smoothed density per fine bin; ``...`` shaped like the box
+        with ``FINE`` bins a voxel along ``axis``
     min_points : points within the mode's window, at least
 
     Returns
@@ -384,13 +478,17 @@ def column_modes(cnt: np.ndarray, off: np.ndarray, den: np.ndarray, axis: int, m
     bins : (m, 3) int64 fine-bin index of each mode (``axis`` in bins, the others in voxels)
     pos : (m,) float64 the mode's position in fine-bin units of the box (trimmed mean of its window)
     strength : (m,) int64 smoothed density at the mode
+    sides : (m, 2) float64 the position of the window's points seen from below / above alone (NaN: fewer than
+        ``min_points`` of them)
     """
-    sh = np.moveaxis(np.empty(cnt.shape, np.int8), axis, -1).shape
-    rows, b, pos, strength = _all_modes(*(np.ascontiguousarray(np.moveaxis(x, axis, -1)).reshape(-1, sh[-1])
-                                          for x in (den, cnt, off)), int(min_points))
+    sh = np.moveaxis(np.empty(den.shape, np.int8), axis, -1).shape
+    rows, b, pos, strength, sides = _all_modes(
+        np.ascontiguousarray(np.moveaxis(den, axis, -1)).reshape(-1, sh[-1]),
+        *(np.ascontiguousarray(np.moveaxis(x, axis + 1, -1)).reshape(2, -1, sh[-1]) for x in (cnt, off)),
+        int(min_points))
     other = np.stack(np.unravel_index(rows, sh[:-1]), 1) if len(rows) else np.zeros((0, 2), np.int64)
     bins = np.insert(other, axis, b, axis=1)
-    return bins, pos, strength
+    return bins, pos, strength, sides
 
 
 class ConsensusLift:
@@ -420,8 +518,8 @@ class ConsensusLift:
         self.min_hit_ratio = float(min_hit_ratio)
         self.tol0, self.tol2 = float(surface_tol), float(surface_tol_r2)
         n = int(np.prod(self.shape))
-        self._cnt = [np.zeros(n * FINE, np.int32) for _ in range(3)]
-        self._off = [np.zeros(n * FINE, np.int64) for _ in range(3)]
+        self._cnt = [np.zeros((2, n * FINE), np.int32) for _ in range(3)]
+        self._off = [np.zeros((2, n * FINE), np.int64) for _ in range(3)]
         self._den = [np.zeros(n * FINE, np.int64) for _ in range(3)]
         self.surface: list[np.ndarray] | None = None
         self.hit_frames = np.zeros(n, np.int32)
@@ -453,7 +551,8 @@ class ConsensusLift:
         axis = np.empty(depth.shape, np.int8)
         _normal_axes(P, ok, depth, NORMAL_STEP, axis)
         c, o, d = self._cnt, self._off, self._den
-        _density_kernel(P, ok, axis, depth, self.h, self.index0, np.asarray(self.shape, np.int64), self.tol2 * KERNEL_R2,
+        _density_kernel(P, ok, axis, depth, T[:3, 3].copy(), self.h, self.index0, np.asarray(self.shape, np.int64),
+                        self.tol2 * KERNEL_R2,
                         c[0], o[0], d[0], c[1], o[1], d[1], c[2], o[2], d[2])
         self.frames += 1
 
@@ -462,25 +561,38 @@ class ConsensusLift:
         n = int(np.prod(self.shape))
         self.surface = []
         self.modes = 0
+        faces = []
         for a in range(3):
             sh = list(self.shape)
             sh[a] *= FINE
-            bins, pos, strength = column_modes(self._cnt[a].reshape(sh), self._off[a].reshape(sh),
-                                                self._den[a].reshape(sh), a, self.min_points)
+            bins, pos, strength, sides = column_modes(self._cnt[a].reshape([2] + sh), self._off[a].reshape([2] + sh),
+                                                      self._den[a].reshape(sh), a, self.min_points)
             S = np.full(n, np.nan)
+            F = np.full((n, 2), np.nan)
             if len(bins):
                 t = (self.index0[a] * FINE + pos) / FINE  # voxel units of the lattice
                 vox = bins.copy()
                 vox[:, a] = np.floor(t + GT_BOUNDARY_EPS).astype(np.int64) - self.index0[a]
                 inside = (vox[:, a] >= 0) & (vox[:, a] < self.shape[a])
-                vox, t, strength = vox[inside], t[inside], strength[inside]
+                vox, t, strength, sides = vox[inside], t[inside], strength[inside], sides[inside]
                 lin = np.ravel_multi_index(tuple(vox.T), self.shape)
                 order = np.lexsort((lin, -strength))  # two modes in one voxel: the stronger (then the first)
-                lin, t = lin[order], t[order]
+                lin, t, sides = lin[order], t[order], sides[order]
                 _, first = np.unique(lin, return_index=True)
                 S[lin[first]] = t[first] * self.h
+                F[lin[first]] = (self.index0[a] * FINE + sides[first]) / FINE * self.h
                 self.modes += len(first)
             self.surface.append(S)
+            faces.append(F)
+        vox, owner = [], []
+        for a in range(3):
+            m = int(np.isfinite(self.surface[a]).sum()) * 2 * SPAN_MAX
+            ov, oo = np.empty(m, np.int64), np.empty(m, np.int64)
+            k = _spans(self.surface[a], faces[a], a, int(self.index0[a]), np.asarray(self.shape, np.int64), self.h,
+                       int(SPAN_MAX), ov, oo)
+            vox.append(ov[:k])
+            owner.append(oo[:k])
+        self.span_vox, self.span_owner = np.concatenate(vox), np.concatenate(owner)
         self._cnt = self._off = self._den = None  # the counts are no longer needed
 
     def add_evidence(self, depth: np.ndarray, T_world_cam: np.ndarray, labels: np.ndarray | None = None) -> None:
@@ -505,18 +617,45 @@ class ConsensusLift:
         self._votes.append(frame_votes(pix, lab, self.n_classes))
         self.annotated += 1
 
-    def occupied(self) -> np.ndarray:
-        """(n,) bool over the box: surface voxels the rays confirm (module docstring, 3)."""
+    def _spanned(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The confirmed mode voxels (n,) bool, and the span voxels (module docstring, 2b) they reach that
+        are not confirmed mode voxels themselves, with their mode voxel."""
         if self.surface is None:
             raise PanovoccError("occupied() before settle()")
         cand = np.isfinite(self.surface[0]) | np.isfinite(self.surface[1]) | np.isfinite(self.surface[2])
         hf = self.hit_frames.astype(np.int64)
-        return cand & (hf >= self.min_frames) & (hf >= self.min_hit_ratio * (hf + self.see_frames))
+        base = cand & (hf >= self.min_frames) & (hf >= self.min_hit_ratio * (hf + self.see_frames))
+        keep = base[self.span_owner] & ~base[self.span_vox]
+        return base, self.span_vox[keep], self.span_owner[keep]
+
+    def occupied(self) -> np.ndarray:
+        """(n,) bool over the box: surface voxels the rays confirm, and the voxels their surfaces span
+        (module docstring, 3)."""
+        base, vox, _ = self._spanned()
+        occ = base.copy()
+        occ[vox] = True
+        return occ
 
     def grid(self, class_names: list[str], label_radius: float) -> Grid:
-        """The lifted ground truth: 0 seen free, 1..253 class, 254 occupied without class, 255 never observed."""
-        occ = self.occupied()
-        g, self.stats = label_grid(occ, self.seen & ~occ, self._votes, self.n_classes, class_names, label_radius,
+        """The lifted grid: 0 seen free, 1..253 class, 254 occupied without class, 255 never observed. A span
+        voxel takes the votes of the mode voxels whose surfaces span it (module docstring, 4)."""
+        base, vox, owner = self._spanned()
+        occ = base.copy()
+        occ[vox] = True
+        votes = list(self._votes)
+        if votes and len(vox):
+            keys = np.concatenate([k for k, _ in votes])
+            w = np.concatenate([v for _, v in votes])
+            order = np.argsort(keys, kind="stable")
+            keys, w = keys[order], w[order]
+            C = self.n_classes
+            start = np.searchsorted(keys, owner * C)
+            n = np.searchsorted(keys, (owner + 1) * C) - start
+            rep = np.repeat(np.arange(len(owner)), n)
+            at = np.repeat(start - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+            votes.append((vox[rep] * C + keys[at] % C, w[at]))
+        g, self.stats = label_grid(occ, self.seen & ~occ, votes, self.n_classes, class_names, label_radius,
                                    self.index0, self.shape, self.h)
         self.stats["modes"] = self.modes
+        self.stats["spanned"] = int(occ.sum() - base.sum())
         return g

@@ -208,8 +208,10 @@ def test_noisy_depth_still_gives_one_surface_layer():  # noqa: C901
             at[ax] = wall
             assert occ[tuple(at)].mean() > 0.99, (ax, off)
             # one layer, but where a wall lies within ~1 sigma of a voxel face (x = -1.97: 3 cm into its voxel,
-            # the noise 2-5 cm there; y = -1.43: 1 cm) up to 20 % of its columns keep a second layer; never three
-            assert (layers == 1).mean() > 0.8 and layers.max() <= 2, (ax, off)
+            # the noise 2-5 cm there; y = -1.43: 1 cm) some columns keep a second layer: a mode on the wrong
+            # side of the face, or a span (module docstring, 2b) that the neighbouring columns' noisy positions
+            # tilt across it (measured: 26 % of the columns of y = -1.43, the wall nearest a face); never three
+            assert (layers == 1).mean() > 0.7 and layers.max() <= 2, (ax, off)
     inside = occ[tuple(slice(lo[d] + 1, hi[d]) for d in range(3))]
     assert inside.sum() <= 0.02 * len(shell)  # 1 % outliers in front of the walls are seen through; what is left
     # inside is the second layer next to a wall (measured: 122 voxels, 1.3 %)
@@ -292,3 +294,64 @@ def test_parse_annotated(spec, n, expect):
 def test_parse_annotated_refuses(spec):
     with pytest.raises(PanovoccError, match="--annotated"):
         parse_annotated(spec, 5)
+
+
+def plane_depth(W, T, n, c, max_range=3.0):
+    """(W/2, W) float32 radial depth of the plane n . x = c seen from pose T (0 where the ray misses it or
+    meets it farther than ``max_range``)."""
+    d = ray_directions(W) @ T[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (c - np.asarray(n) @ T[:3, 3]) / (d @ np.asarray(n))
+    return np.where(np.isfinite(t) & (t > 0) & (t < max_range), t, 0.0).astype(np.float32)
+
+
+def plane_voxels(n, c, lo, hi):
+    """Lattice indices of the voxels of x in [lo, hi], y in [lo, hi] columns that the plane z = (c - n_x x -
+    n_y y) / n_z passes through with positive area (its z range over each column's footprint)."""
+    out = set()
+    for i in range(int(np.floor(lo / H)), int(np.floor(hi / H))):
+        for j in range(int(np.floor(lo / H)), int(np.floor(hi / H))):
+            zs = [(c - n[0] * x - n[1] * y) / n[2] for x in (i * H, (i + 1) * H) for y in (j * H, (j + 1) * H)]
+            for k in range(int(np.floor(min(zs) / H + 1e-5)), int(np.floor(max(zs) / H - 1e-5)) + 1):
+                out.add((i, j, k))
+    return out
+
+
+@pytest.mark.parametrize("slope", [0.3, 0.45])
+def test_a_tilted_surface_keeps_every_voxel_it_passes_through(slope, monkeypatch):
+    """A floor tilted about the y axis (z = slope x - 1.13; 17 and 24 degrees) crosses one or two voxels of each
+    z column: the consensus keeps them (spans, module docstring 2b) but for slivers the plane cuts less than
+    SPAN_MARGIN deep (measured: 10 of 1170, 7 of 1290), and nothing else; one voxel a column missed 23 % / 30 %
+    of them (SPAN_MAX = 0: 270, 390)."""
+    from panovocc_cli.gt import consensus
+
+    n = np.array([-slope, 0.0, 1.0])
+    frames = [(plane_depth(W, T, n, -1.13), T) for T in POSES]
+    truth = plane_voxels(n, -1.13, -1.2, 1.2)
+
+    def inner(g):
+        return {v for v in occupied_set(g) if all(-1.2 <= x * H and (x + 1) * H <= 1.2 for x in v[:2])}
+
+    got = inner(accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16))
+    assert got <= truth and len(truth - got) <= 0.01 * len(truth)
+    monkeypatch.setattr(consensus, "SPAN_MAX", 0)
+    one = inner(accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16))
+    assert one <= truth and len(truth - one) >= 0.2 * len(truth)
+
+
+def test_a_slab_seen_from_both_sides_keeps_both_voxels():
+    """A leaf 4 cm thick straddling a voxel face (y in [-0.10, -0.06], the face at -0.08), cameras on both
+    sides: its two faces are one mode of each y column (closer than a mode's window), whose points seen from
+    below lie 4 cm under those seen from above: both voxels, as the mesh truth has them (one without the
+    sides' positions)."""
+    y0, y1 = -0.10, -0.06
+    poses = [turned_pose(0.3 * k, (0.2 * k - 0.3, y, 0.1 * k)) for k in range(3) for y in (-1.2, 1.1)]
+    frames = []
+    for T in poses:
+        below = T[1, 3] < y0
+        frames.append((plane_depth(W, T, np.array([0.0, 1.0, 0.0]), y0 if below else y1, 2.5), T))
+    g = accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16)
+    occ = occupied_set(g)
+    cols = {(i, k) for i in range(-8, 8) for k in range(-8, 8)}
+    assert {(i, -2, k) for i, k in cols} | {(i, -1, k) for i, k in cols} <= occ
+    assert all(j in (-2, -1) for _, j, _ in occ)
