@@ -38,12 +38,19 @@ def map_cmd(
                                   help="The viewer's gRPC URL for --rerun-connect (default "
                                        "rerun+http://127.0.0.1:9876/proxy)."),
     rerun_every: int = typer.Option(10, "--rerun-every", min=1, help="Frames between two logs of the growing map."),
+    workers: int = typer.Option(0, "--workers", min=0, help="Integrate the frames in shards on a local Dask cluster "
+                                "of N worker processes (one thread each); 0 = in this process. The map's bytes "
+                                "do not depend on N (docs/sharding.md)."),
+    scheduler: str = typer.Option(None, "--scheduler", metavar="ADDRESS", show_default=False,
+                                  help="Integrate the frames in shards on the workers of this running Dask "
+                                       "scheduler (tcp://HOST:8786); they must see SEQ at the same path and run "
+                                       "this checkout (docs/sharding.md)."),
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
     (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
     live = _live_log(rerun, rerun_connect, rerun_url, rerun_every, overwrite, o)
     try:
-        summary = _map(o, config, resume, overwrite, quiet, live)
+        summary = _map(o, config, resume, overwrite, quiet, live, workers, scheduler)
         if live is not None:
             live.close(ok=True)
     finally:
@@ -74,7 +81,27 @@ def _live_log(rrd, connect: bool, url, every: int, overwrite: bool, o: OptionVal
     return LiveLog(rrd=rrd, connect=(url or "") if connect else None, every=every)
 
 
-def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live) -> dict:
+def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live, workers: int = 0,
+         scheduler: str | None = None) -> dict:
+    if workers or scheduler:
+        import contextlib
+        import sys
+
+        from ..benchmark.runner import dask_client
+        from ..benchmark.sharded import DaskShards
+
+        if workers and scheduler:
+            raise PanovoccError("give --workers N (a local cluster) or --scheduler ADDRESS (a running one), not both")
+        with contextlib.ExitStack() as stack:
+            client = stack.enter_context(dask_client(scheduler, workers, log=None if quiet else sys.stderr))
+            shards = DaskShards(client)
+            summary = _map_with(o, config, resume, overwrite, quiet, live, shards)
+            summary["shards"] = shards.stats
+            return summary
+    return _map_with(o, config, resume, overwrite, quiet, live, None)
+
+
+def _map_with(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live, shards) -> dict:
     from ..mapping.pipeline import run_map
 
     seq, out = o["seq"], o["out"]
@@ -85,7 +112,7 @@ def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, li
         given = [o.flags[n] for n in o.given if n not in ("seq", "out")] + (["--config"] if config is not None else [])
         if given:
             raise PanovoccError(f"--resume reuses the run's saved config; {', '.join(sorted(given))} cannot change it")
-        return run_map(resume_out=target, progress=not quiet, observer=live)
+        return run_map(resume_out=target, progress=not quiet, observer=live, shards=shards)
     else:
         from_file = apply_config_file(o, config) if config is not None else set()
         seq, out = o["seq"], o["out"]
@@ -99,10 +126,13 @@ def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, li
                            occupancy=build_config(OccupancyParams, o), semantic=build_config(SemanticParams, o),
                            ablation=build_config(AblationParams, o))
         if cfg.poses == POSES_SLAM:  # poses estimated online (slam/run.py); SEQ/poses.txt is never read
+            if shards is not None:
+                raise PanovoccError("--poses slam tracks the frames in order, in one process: it cannot be sharded "
+                                    "(--workers/--scheduler)")
             from ..slam.run import run_map_slam
 
             return run_map_slam(cfg, overwrite=overwrite, progress=not quiet, observer=live)
-        return run_map(cfg, overwrite=overwrite, progress=not quiet, observer=live)
+        return run_map(cfg, overwrite=overwrite, progress=not quiet, observer=live, shards=shards)
 
 
 def _report(summary: dict) -> None:
@@ -113,6 +143,11 @@ def _report(summary: dict) -> None:
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
                f"(update {summary['update_ms_per_frame']:.1f} ms{seg}): {summary['occupied']} occupied{classed}, "
                f"{summary['free']} free voxels -> {summary['out']}")
+    if summary.get("shards"):
+        st = summary["shards"]
+        typer.echo(f"shards: {st['shards']} on {st['workers']} worker(s); sent back {st['record_bytes'] / 1e6:.1f} MB "
+                   f"of delta records ({st['record_bytes'] / max(st['frames'], 1) / 1e6:.3f} MB a frame) and "
+                   f"{st['partial_bytes'] / 1e6:.1f} MB of partial memories ({st['root_bytes'] / 1e6:.1f} MB summed)")
     if "slam" in summary:
         sl = summary["slam"]
         unplaced = sl["unplaced_frames"]
