@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import List
 
+import numpy as np
 import typer
 
 from ..errors import PanovoccError
@@ -240,3 +242,44 @@ def apply_config_file(o: OptionValues, path: Path) -> set:
         o[key] = value
         used.add(key)
     return used
+
+
+@app.command("merge")
+def merge_cmd(
+    paths: List[Path] = typer.Argument(..., help="MAP_A MAP_B [MAP_C ...] OUT: map folders, then the merged map's "
+                                       "folder."),
+    transform: Path = typer.Option(None, "--transform", metavar="FILE", show_default=False,
+                                   help="A 4x4 matrix (4 lines of 4 numbers) taking MAP_B's world into MAP_A's: "
+                                        "MAP_B's frames are integrated again under it, in MAP_A's frame."),
+    align: bool = typer.Option(False, "--align", help="Find --transform by registering MAP_B's occupied voxels onto "
+                               "MAP_A's (the SLAM front end's GICP; from the identity, or from --transform)."),
+    renumber: bool = typer.Option(False, "--renumber", help="Maps of separate captures: shift each map's frame ids "
+                                  "past the previous maps' (else colliding ids are refused)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a map already in OUT."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """The exact sum of maps made with the same mapping parameters, vocabulary and origin: a map folder
+    that exports, revises and merges like any other (docs/sharding.md)."""
+    from ..mapping.merge import run_merge
+
+    if len(paths) < 3:
+        raise PanovoccError("expected MAP_A MAP_B [MAP_C ...] OUT")
+    maps, out = paths[:-1], paths[-1]
+    T = None
+    if transform is not None:
+        from ..io.poses import read_transform
+
+        T = read_transform(transform)
+    if align:
+        from ..mapping.merge import occupied_points
+        from ..slam.registration import register_points
+
+        if len(maps) != 2:
+            raise PanovoccError("--align registers the second of exactly two maps onto the first")
+        T, fitness = register_points(occupied_points(maps[0]), occupied_points(maps[1]), T)
+        typer.echo(f"--align: MAP_B registered onto MAP_A, fitness {fitness:.3f}, translation "
+                   f"{np.round(T[:3, 3], 3).tolist()} m")
+    s = run_merge(maps, out, overwrite=overwrite, transform=T, renumber=renumber, progress=not quiet)
+    classed = f", {s['classed']} with a class" if "classed" in s else ""
+    typer.echo(f"merged {s['maps']} maps ({s['frames']} frames): {s['occupied']} occupied{classed}, {s['free']} free "
+               f"voxels -> {s['out']}")

@@ -104,6 +104,15 @@ def check_key_reach(g: GeometryParams) -> None:
                             f"{g.max_range:g} m")
 
 
+MERGED_FROM = "merged_from"  # config.json of a merge of maps of several sequences: those maps (mapping/merge.py)
+
+
+def several_sequences(raw: dict) -> bool:
+    """Whether a map folder's ``config.json`` (parsed) is a merge of maps of several sequences (its frame ids
+    no longer name one sequence's frames: it cannot be revised or resumed)."""
+    return len({m["seq"] for m in raw.get(MERGED_FROM) or []}) > 1
+
+
 def parse_frames(text) -> str:
     """``--frames`` as typed: ``A:B`` (frames A..B-1 of the sequence; ``A:`` to its end, ``:B`` from 0), or
     several such ranges separated by commas; returned with spaces removed. One line naming --frames

@@ -263,6 +263,17 @@ class Mapper:
         self._next_id = max(self._next_id, fid + 1)
 
     @_locked
+    def record(self, frame_id: int) -> bytes:
+        """Frame ``frame_id``'s kept delta as its record payload (:func:`.rpu.encode_record`; a folder's log
+        record as it is): what :meth:`keep_encoded` takes."""
+        return self._rpu.store.payload(frame_id)
+
+    @_locked
+    def observation(self, frame_id: int):
+        """The semantic observation kept with frame ``frame_id``'s delta (None: geometry only)."""
+        return self._rpu.store.get(frame_id).observation
+
+    @_locked
     def add_sum(self, delta: FrameDelta) -> None:
         """Add to the memory the exact sum of deltas kept by :meth:`keep_encoded` (a partial memory)."""
         self.memory.add(delta, +1)

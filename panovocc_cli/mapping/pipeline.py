@@ -41,7 +41,8 @@ from ..io.poses import frame_poses, read_first_pose, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
 from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig,
-                     MapperConfig, ReviseConfig, SemanticParams, check_key_reach, frame_ids)
+                     MapperConfig, ReviseConfig, SemanticParams, check_key_reach, frame_ids,
+                     several_sequences)
 from .export import point_colors
 from .mapper import Mapper
 from .rpu import has_store
@@ -363,8 +364,13 @@ def _require_deltas(out: Path) -> None:
 
 
 def load_config(out: str | Path) -> MapConfig:
-    """The resolved :class:`MapConfig` of a map run's output folder."""
-    return MapConfig.from_json(mapstore.read_map_config(out), Path(out) / CONFIG_NAME)
+    """The resolved :class:`MapConfig` of a map run's output folder (refused for a merge of several
+    sequences' maps, which revise and resume cannot read frames for)."""
+    raw = mapstore.read_map_config(out)
+    if several_sequences(raw):
+        raise PanovoccError("a merge of maps of several sequences cannot be revised or resumed (its frame ids name "
+                            "no one sequence's frames): revise or resume the input maps and merge them again", out)
+    return MapConfig.from_json(raw, Path(out) / CONFIG_NAME)
 
 
 def _remove_unless_started(out: Path) -> None:

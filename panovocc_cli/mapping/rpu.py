@@ -183,6 +183,15 @@ class DeltaStore:
                                 "(the map folder was changed by another process)", path)
         return _frame_delta(parts, obs)
 
+    def payload(self, frame_id: int) -> bytes:
+        """The PUT payload of ``frame_id``'s kept delta (:func:`encode_record`): the log record's bytes as they
+        are (a merge appends them unchanged), or, for a delta kept in RAM or a file of its own, encoded."""
+        fid = int(frame_id)
+        if fid in self.poses and self.folder is not None and self._locs[fid][0] != LEGACY and (
+                self._inflight is None or self._inflight[0] != fid):
+            return self._log.read(self._locs[fid])
+        return encode_record(self.get(fid), self.poses[fid])
+
     def nbytes(self) -> int:
         """Bytes of the kept deltas on disk (the log's live records; 0 in RAM)."""
         return sum(int(loc[2]) + 32 for loc in self._locs.values() if loc[0] != LEGACY)

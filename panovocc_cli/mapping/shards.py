@@ -96,18 +96,30 @@ def encode_partial(memory: VoxelMemory) -> bytes:
 
 
 def decode_partial(blob: bytes) -> tuple[float, list, FrameDelta]:
-    """Inverse of :func:`encode_partial`: (voxel size, channel specs, the memory as a delta: the geometry over
-    every voxel, the other channels over the voxels where one is non-zero)."""
+    """Inverse of :func:`encode_partial`: (voxel size, channel specs, the memory as a delta,
+    :func:`as_delta`)."""
     z = mapstore.decode_arrays(blob)
-    specs = memory_specs(z)
     keys, ch = mapstore.arrays_record(z).parts[0]
-    geo = {k: v for k, v in ch.items() if k in GEOMETRY_NAMES}
-    rest = {k: v for k, v in ch.items() if k not in GEOMETRY_NAMES}
+    return float(z["voxel_size"][0]), memory_specs(z), as_delta(keys, ch)
+
+
+def as_delta(keys: np.ndarray, channels) -> FrameDelta:
+    """A memory's non-zero voxels (``keys`` (n,) int64, ``channels`` name -> (n, width) int64) as a delta
+    that adds them: the geometry over every voxel, the other channels over the voxels where one is non-zero
+    (no semantic row is allocated for a voxel without semantics)."""
+    geo = {k: np.asarray(channels[k]) for k in channels if k in GEOMETRY_NAMES}
+    rest = {k: np.asarray(channels[k]) for k in channels if k not in GEOMETRY_NAMES}
     parts = [Delta(keys, geo)] if geo else []
     if rest:
         rows = np.flatnonzero(np.any(np.concatenate(list(rest.values()), axis=1) != 0, axis=1))
         parts.append(Delta(keys[rows], {k: v[rows] for k, v in rest.items()}))
-    return float(z["voxel_size"][0]), specs, FrameDelta(tuple(parts))
+    return FrameDelta(tuple(parts))
+
+
+def memory_delta(memory: VoxelMemory) -> FrameDelta:
+    """A memory as a delta that adds it (:func:`as_delta`): what a merge adds for each input map."""
+    keys, ch = memory.nonzero()
+    return as_delta(np.asarray(keys), {s.name: ch[s.name] for s in memory.specs})
 
 
 def sum_partials(*blobs: bytes) -> bytes:

@@ -21,8 +21,9 @@ OUTPUTS = ("memory.npz", "prediction.npz", "map.ply", "poses.txt", "config.json"
            "deltas/commits.pvj", "deltas/snapshot.npz")
 
 
-def write_labelled_room(seq, n, width, poses=None):
-    """The furnished box room rendered with its class labels (semantic/), so maps of it carry semantics."""
+def write_labelled_room(seq, n, width, poses=None, world=None):
+    """The furnished box room rendered with its class labels (semantic/), so maps of it carry semantics;
+    ``world`` (4, 4): the poses written are ``world @ pose`` (the same capture, recorded in another world)."""
     scene = room_scene(True)
     ren = RaycastRenderer(scene, width)
     poses = room_trajectory(n) if poses is None else poses
@@ -30,7 +31,7 @@ def write_labelled_room(seq, n, width, poses=None):
         fr = ren.render(T)
         write_frame(seq, i, fr.rgb, fr.depth, fr.labels)
     write_meta(seq, SequenceMeta(width=width, height=width // 2, frames=len(poses), class_names=scene.class_names))
-    write_sequence_poses(seq, poses)
+    write_sequence_poses(seq, poses if world is None else np.einsum("ij,njk->nik", world, poses))
     return poses
 
 
@@ -128,3 +129,99 @@ def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_wo
         assert set(client.run(os.getpid).values()) != pids  # ... and was replaced by the nanny
         assert folder_bytes(out) == want
     assert [r[:2] for r in _records(out)] == [(1, i) for i in range(N)]
+
+
+def test_merging_two_halves_equals_the_whole_map_and_revises_like_it(labelled_room, sequential, tmp_path, capsys):
+    from cli_helpers import run_cli
+
+    from panovocc_cli.io.poses import write_poses
+    from panovocc_cli.io.sequence import Sequence
+    from panovocc_cli.mapping.pipeline import run_revise
+
+    a, b, out = tmp_path / "a", tmp_path / "b", tmp_path / "ab"
+    run_map(_cfg(labelled_room, a, frames="0:3"), progress=False)
+    run_map(_cfg(labelled_room, b, frames="3:"), progress=False)
+    code, so, err = run_cli(capsys, ["merge", b, a, out, "--quiet"])  # in any order
+    assert code == 0, err
+    assert f"merged 2 maps ({N} frames)" in so
+    assert folder_bytes(out) == folder_bytes(sequential)
+    assert _records(out) == _records(sequential)  # every record, byte for byte, in frame order
+    # the merged map revises exactly as the whole map does
+    poses = Sequence(labelled_room).poses.copy()
+    poses[5][:3, 3] += [0.03, -0.02, 0.0]
+    write_poses(tmp_path / "moved.txt", poses)
+    import shutil
+
+    whole = tmp_path / "whole"
+    shutil.copytree(sequential, whole)
+    assert run_revise(out, tmp_path / "moved.txt", progress=False)["revised"] == 1
+    run_revise(whole, tmp_path / "moved.txt", progress=False)
+    assert folder_bytes(out) == folder_bytes(whole)
+    # refused with one line, nothing written: colliding ids, other parameters, an existing OUT
+    code, _, err = run_cli(capsys, ["merge", a, a, tmp_path / "x"])
+    assert code == 2 and "frame 0 is in both" in err and "--renumber" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+    c = tmp_path / "c"
+    run_map(_cfg(labelled_room, c, frames="3:", semantic=__import__("panovocc_cli.mapping.config", fromlist=["x"])
+                 .SemanticParams(vocab="wall,table")), progress=False)
+    code, _, err = run_cli(capsys, ["merge", a, c, tmp_path / "x"])
+    assert code == 2 and "vocab" in err and str(c) in err and not (tmp_path / "x").exists()
+    code, _, err = run_cli(capsys, ["merge", a, b, out])
+    assert code == 2 and "--overwrite" in err
+
+
+def test_merging_separate_captures_renumbers_and_equals_one_map_of_both(labelled_room, tmp_path, capsys):
+    """Two captures of the room (other trajectories) in one world frame: the merge equals mapping the
+    frames of both as one sequence, and a transform re-integrates the second capture in the first's frame."""
+    from cli_helpers import run_cli
+
+    from panovocc_cli.io.sequence import Sequence
+
+    p1 = Sequence(labelled_room).poses.copy()
+    p2 = p1[::-1].copy()
+    p2[:, :3, 3] += [0.11, 0.07, 0.0]
+    both = tmp_path / "both"
+    write_labelled_room(both, 0, W, poses=np.concatenate([p1[:4], p2[:4]]))
+    second = tmp_path / "second"
+    write_labelled_room(second, 0, W, poses=p2[:4])
+    origin = [0.0, 0.0, 1.2]
+    from panovocc_cli.mapping.config import SemanticParams
+
+    geo = SemanticParams(segmenter="none")  # the simulated segmenter's noise is seeded by the frame id
+    m1, m2, m12, ref = (tmp_path / n for n in ("m1", "m2", "m12", "ref"))
+    run_map(_cfg(labelled_room, m1, frames="0:4", origin=origin, semantic=geo), progress=False)
+    run_map(_cfg(second, m2, origin=origin, semantic=geo), progress=False)
+    run_map(_cfg(both, ref, origin=origin, semantic=geo), progress=False)
+    code, _, err = run_cli(capsys, ["merge", m1, m2, m12 / "x"])
+    assert code == 2 and "--renumber" in err
+    code, _, err = run_cli(capsys, ["merge", m1, m2, m12, "--renumber", "--quiet"])
+    assert code == 0, err
+    skip = ("poses.txt", "config.json")  # the same poses; config.json names the sources
+    assert folder_bytes(m12, [n for n in OUTPUTS if n not in skip]) == folder_bytes(ref, [n for n in OUTPUTS
+                                                                                         if n not in skip])
+    code, _, err = run_cli(capsys, ["revise", m12, tmp_path / "none.txt"])
+    assert code == 2 and "several sequences" in err
+    # the second capture made in a world moved by T: --transform T^-1 brings it back, exactly
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    T[:3, 3] = [0.5, -0.25, 0.0]
+    moved = tmp_path / "moved"
+    write_labelled_room(moved, 0, W, poses=p2[:4], world=T)
+    mm = tmp_path / "mm"
+    run_map(_cfg(moved, mm, semantic=geo), progress=False)
+    Tinv = np.linalg.inv(T)
+    (tmp_path / "T.txt").write_text("\n".join(" ".join(repr(float(v)) for v in row) for row in Tinv) + "\n")
+    code, so, err = run_cli(capsys, ["merge", m1, mm, tmp_path / "mT", "--renumber", "--transform",
+                                     tmp_path / "T.txt", "--quiet"])
+    assert code == 0, err
+    from map_helpers import load_memory
+
+    got, ref_mem = load_memory(tmp_path / "mT")[0], load_memory(m12)[0]
+    k1, c1 = got.nonzero()
+    k2, c2 = ref_mem.nonzero()
+    # the moved capture brought back by the inverse (here exactly representable: the poses come back bit for
+    # bit) gives the direct merge's voxels and grid
+    from panovocc_cli.io.grid import read_grid
+
+    assert np.array_equal(k1, k2)
+    assert np.array_equal(read_grid(tmp_path / "mT" / "prediction.npz").labels, read_grid(m12 / "prediction.npz").labels)
