@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import time
 import uuid
 
 from ..errors import PanovoccError
@@ -69,11 +70,13 @@ def _prepare(cfg_json: str, code: str, what: str):
 
 
 def shard_task(cfg_json: str, code: str, ids: list) -> tuple:
-    """On a worker: integrate frames ``ids``; returns (records, partial memory bytes, their length)."""
+    """On a worker: integrate frames ``ids``; returns (records, partial memory bytes, their length, the
+    worker's CPU seconds on them)."""
     frames = _prepare(cfg_json, code, f"the shard of frames {ids[0]}:{ids[-1] + 1}")
     cfg = MapConfig.from_json(json.loads(cfg_json), "the client's map config")
+    c0 = time.process_time()
     records, partial = integrate_shard(cfg.mapper_config(), frames, ids, _exit_hook(ids))
-    return records, partial, len(partial)
+    return records, partial, len(partial), time.process_time() - c0
 
 
 def warm_task(cfg_json: str, code: str, frame_id: int) -> int:
@@ -86,7 +89,7 @@ def warm_task(cfg_json: str, code: str, frame_id: int) -> int:
 
 
 def _records(result: tuple) -> tuple:
-    return result[0], result[2]
+    return result[0], result[2], result[3]
 
 
 def _partial(result: tuple) -> bytes:
@@ -102,8 +105,9 @@ class DaskShards:
     shards_per_worker : shards per worker (the frames are cut into ``workers x shards_per_worker`` runs)
     warm : first integrate one frame on every worker (each checks its code; timing runs start warm)
 
-    After a run, :attr:`stats` holds the shard count, workers, and the bytes sent back: records (to the
-    client) and partial memories (to the tree's sums; its root to the client).
+    After a run, :attr:`stats` holds the shard count, workers, the bytes sent back: records (to the
+    client) and partial memories (to the tree's sums; its root to the client), the wall seconds of the run
+    after the warm-up, the workers' CPU seconds in the shards and the client's CPU seconds meanwhile.
     """
 
     def __init__(self, client, shards_per_worker: int = SHARDS_PER_WORKER, warm: bool = True):
@@ -141,6 +145,7 @@ class DaskShards:
         workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         if self.warm:
             self.warm_workers(cfg, ids[0])
+        t0, c0 = time.perf_counter(), time.process_time()
         cfg_json, code = json.dumps(cfg.to_json(), sort_keys=True), code_fingerprint()
         ranges = shard_ranges(ids, workers * self.shards_per_worker)
         token = uuid.uuid4().hex[:12]
@@ -157,14 +162,16 @@ class DaskShards:
         index = {f.key: k for k, f in enumerate(records)}
         arrived, nxt = {}, 0
         record_bytes = partial_bytes = 0
+        shard_cpu = 0.0
         for fut in as_completed(records):
             k = index[fut.key]
             arrived[k] = self._result(fut)
             fut.release()
             while nxt in arrived:
-                rec, nbytes = arrived.pop(nxt)
+                rec, nbytes, cpu = arrived.pop(nxt)
                 record_bytes += rec.nbytes()
                 partial_bytes += nbytes
+                shard_cpu += cpu
                 empty = set(rec.empty)
                 for fid, T, payload in zip(rec.ids, rec.poses, rec.payloads):
                     mapper.keep_encoded(fid, payload, T, empty=fid in empty)
@@ -175,5 +182,6 @@ class DaskShards:
         if h != mapper.memory.voxel_size or list(specs) != list(mapper.memory.specs):
             raise PanovoccError("the workers' partial memory has another channel layout than the map")
         mapper.add_sum(delta)
-        self.stats = {"shards": len(ranges), "workers": workers, "frames": len(ids), "record_bytes": record_bytes,
+        self.stats = {"seconds": time.perf_counter() - t0, "client_cpu_s": time.process_time() - c0,
+                      "shard_cpu_s": shard_cpu, "shards": len(ranges), "workers": workers, "frames": len(ids), "record_bytes": record_bytes,
                       "partial_bytes": partial_bytes, "root_bytes": len(root)}

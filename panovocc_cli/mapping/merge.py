@@ -20,6 +20,7 @@ merged memory is what mapping both captures in one world frame gives.
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import sys
 from pathlib import Path
 
@@ -53,7 +54,7 @@ def run_merge(maps, out, overwrite: bool = False, transform: np.ndarray | None =
     """Merge the map folders ``maps`` (two or more) into ``out``; returns a summary (frames, occupied, free,
     [classed], out). Bad input (a map that cannot be read, different parameters, colliding frame ids, an
     existing OUT without ``overwrite``) is refused with one line before anything is written."""
-    from .pipeline import _OUTPUTS, _remove_unless_started, _require_deltas, _writer_lock, write_exports
+    from .pipeline import _OUTPUTS, _require_deltas, _writer_lock, write_exports
 
     maps = [Path(m) for m in maps]
     out = Path(out)
@@ -80,10 +81,7 @@ def run_merge(maps, out, overwrite: bool = False, transform: np.ndarray | None =
         for m in maps:
             mappers.append(Mapper.load(m))
         plan, sources = _plan(maps, cfgs, raws, mappers, renumber)
-        if not (out.exists() or out.is_symlink()):
-            made = True
-        else:
-            made = False
+        made = not (out.exists() or out.is_symlink())
         out.mkdir(parents=True, exist_ok=True)
         try:
             with _writer_lock(out):
@@ -92,13 +90,11 @@ def run_merge(maps, out, overwrite: bool = False, transform: np.ndarray | None =
                         raise PanovoccError("already holds a map (use --overwrite to replace it)", out)
                     for name in _OUTPUTS:
                         (out / name).unlink(missing_ok=True)
-                    import shutil
-
                     shutil.rmtree(out / mapstore.DELTAS_DIR, ignore_errors=True)
                 summary = _write(out, maps, cfgs, mappers, plan, sources, transform, progress, write_exports)
         except BaseException:
-            if made:
-                _remove_unless_started(out)
+            if made:  # nothing half-written: a folder this merge created goes again
+                shutil.rmtree(out, ignore_errors=True)
             raise
     finally:
         for m in mappers:
