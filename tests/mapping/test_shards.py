@@ -225,3 +225,28 @@ def test_merging_separate_captures_renumbers_and_equals_one_map_of_both(labelled
 
     assert np.array_equal(k1, k2)
     assert np.array_equal(read_grid(tmp_path / "mT" / "prediction.npz").labels, read_grid(m12 / "prediction.npz").labels)
+
+
+def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path, capsys):
+    from cli_helpers import run_cli
+
+    from panovocc_cli.benchmark.runner import dask_client
+    from panovocc_cli.benchmark.sharded import shard_task
+
+    out = tmp_path / "cli"
+    code, so, err = run_cli(capsys, ["map", labelled_room, out, "--workers", "2", "--checkpoint-every", "3",
+                                     "--vocab", "wall,table,cabinet,shelf", "--quiet"])
+    assert code == 0, err
+    assert f"mapped {N} of {N} frames" in so and "shards: 8 on 2 worker(s)" in so
+    assert folder_bytes(out) == folder_bytes(sequential)
+    # one line, exit 2, nothing written
+    code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--frames", "6:3"])
+    assert code == 2 and "--frames 6:3" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "f").exists()
+    code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--workers", "2", "--scheduler", "x"])
+    assert code == 2 and "not both" in err
+    with pytest.raises(PanovoccError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
+        with dask_client("tcp://127.0.0.1:9", timeout="2s"):
+            pass
+    with pytest.raises(PanovoccError, match="this worker runs other code"):  # what a worker of another checkout says
+        shard_task("{}", "0" * 64, [0, 1])
