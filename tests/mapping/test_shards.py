@@ -250,3 +250,33 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
             pass
     with pytest.raises(PanovoccError, match="this worker runs other code"):  # what a worker of another checkout says
         shard_task("{}", "0" * 64, [0, 1])
+
+
+def test_align_finds_the_transform_between_two_captures(labelled_room, tmp_path, capsys):
+    """--align: the room captured again in a world shifted by a few centimetres and turned by 2 degrees;
+    GICP of the occupied voxels recovers the transform to within a fraction of a voxel."""
+    from cli_helpers import run_cli
+
+    from panovocc_cli.io.sequence import Sequence
+    from panovocc_cli.mapping.config import SemanticParams
+    from panovocc_cli.mapping.merge import occupied_points
+    from panovocc_cli.slam.registration import register_points
+
+    geo = SemanticParams(segmenter="none")
+    p = Sequence(labelled_room).poses.copy()
+    a = np.deg2rad(2.0)
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[:3, 3] = [0.06, -0.04, 0.02]
+    moved = tmp_path / "moved"
+    write_labelled_room(moved, 0, W, poses=p[4:8], world=T)
+    m1, m2 = tmp_path / "m1", tmp_path / "m2"
+    run_map(_cfg(labelled_room, m1, frames="0:4", semantic=geo), progress=False)
+    run_map(_cfg(moved, m2, semantic=geo), progress=False)
+    found, fitness = register_points(occupied_points(m1), occupied_points(m2))
+    err = np.linalg.inv(T) @ np.linalg.inv(found)  # identity when found = T^-1
+    assert fitness > 0.5
+    assert np.abs(err[:3, 3]).max() < 0.02 and np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1))) < 0.5
+    code, so, e = run_cli(capsys, ["merge", m1, m2, tmp_path / "m12", "--renumber", "--align", "--quiet"])
+    assert code == 0, e
+    assert "--align: MAP_B registered onto MAP_A" in so
