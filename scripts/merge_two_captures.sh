@@ -31,5 +31,6 @@ $P map "$W/seq_a" "$W/map_a" --origin 0,0,0 --overwrite --quiet
 $P map "$W/seq_b" "$W/map_b" --origin 0,0,0 --overwrite --quiet
 $P merge "$W/map_a" "$W/map_b" "$W/map_ab" --renumber --overwrite --quiet
 for m in map_a map_b map_ab; do
-  echo "$m: $($P eval "$W/$m/prediction.npz" "$W/gt.npz" --classes eval8 --json)"
+  $P eval "$W/$m/prediction.npz" "$W/gt.npz" --classes eval8 --json | $PY -c "import json, sys; d = json.load(sys.stdin); \
+print(f'$m: IoU {d[\"iou\"]:.2f} mIoU {d[\"miou\"]:.2f} (FreeOcc, eval8)')"
 done
