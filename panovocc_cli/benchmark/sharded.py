@@ -33,6 +33,7 @@ from ..mapping.config import MapConfig
 from ..mapping.shards import decode_partial, integrate_shard, shard_ranges, sum_partials
 from .tasks import check_code, code_fingerprint
 
+WAIT_FOR_WORKERS_S = 60  # a scheduler without workers: how long to wait for the first one
 SHARDS_PER_WORKER = 4  # shards a worker gets on average: balance against a slow worker, few partial memories
 EXIT_HOOK_ENV = "PANOVOCC_TEST_SHARD_EXIT"  # tests: a marker path; the first worker to reach the middle of a
 #                                             shard creates it and exits at once (a worker lost mid-shard)
@@ -133,7 +134,7 @@ class DaskShards:
         token = uuid.uuid4().hex[:12]
         workers = list(self.client.scheduler_info().get("workers", {}))
         futs = [self.client.submit(warm_task, cfg_json, code, int(frame_id), key=f"panovocc-warm-{token}-{k}",
-                                   workers=[w], allow_other_workers=False, pure=False) for k, w in enumerate(workers)]
+                                   workers=[w], allow_other_workers=True, pure=False) for k, w in enumerate(workers)]
         return [self._result(f) for f in futs]
 
     def __call__(self, mapper, cfg: MapConfig, ids):
@@ -142,6 +143,12 @@ class DaskShards:
         ids = [int(i) for i in ids]
         if not ids:
             return
+        if not self.client.scheduler_info().get("workers"):
+            try:
+                self.client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
+            except TimeoutError:
+                raise PanovoccError(f"the Dask scheduler at {self.client.scheduler.address} has no workers (none "
+                                    f"joined within {WAIT_FOR_WORKERS_S} s): start some (docs/sharding.md)") from None
         workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         if self.warm:
             self.warm_workers(cfg, ids[0])

@@ -31,7 +31,7 @@ from ..geometry.poses import check_rigid
 from ..io import mapstore
 from ..io.atomic import check_outputs
 from ..io.sequence import Sequence, read_meta
-from .config import MERGED_FROM, MapConfig
+from .config import MERGED_FROM, MapConfig, several_sequences
 from .mapper import Mapper
 from .rpu import encode_record
 from .shards import memory_delta, merge_configs
@@ -71,6 +71,9 @@ def run_merge(maps, out, overwrite: bool = False, transform: np.ndarray | None =
         raws.append(raw)
         cfgs.append(MapConfig.from_json(raw, m / mapstore.CONFIG_NAME))
     mcfgs = [c.mapper_config() for c in cfgs]
+    if transform is not None and several_sequences(raws[1]):
+        raise PanovoccError("--transform / --align integrate the second map's frames again from its sequence; this map "
+                            "merges several sequences: transform its inputs instead", maps[1])
     if transform is not None:  # the second map is integrated again in the first's frame and origin
         merge_configs([mcfgs[0], dataclasses.replace(mcfgs[1], origin=mcfgs[0].origin)], [str(m) for m in maps])
     else:

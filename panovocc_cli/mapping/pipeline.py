@@ -432,12 +432,21 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source, observer, shards)
 
 
+def _check_shardable(cfg: MapConfig, observer) -> None:
+    """A sharded run integrates frames apart, on other processes: refuse what needs them in order, here."""
+    if cfg.poses == POSES_SLAM or cfg.ablation.perturbs or observer is not None or cfg.frame_times:
+        raise PanovoccError("a sharded run (--workers/--scheduler) maps frames independently: it cannot be combined "
+                            "with --poses slam, the drift ablation, a live log or --frame-times")
+
+
 def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None,
              observer=None, shards=None) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
         cfg = load_config(out)
+        if shards is not None:
+            _check_shardable(cfg, observer)
         check_resumable(cfg.ablation, out / CONFIG_NAME)
         if cfg.poses == POSES_SLAM:
             raise PanovoccError("a --poses slam run cannot be resumed (the tracker's state is not saved); start over "
@@ -462,6 +471,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
         cfg = validate_config(cfg)
+        if shards is not None:
+            _check_shardable(cfg, observer)
         if (cfg.poses == POSES_SLAM) != (pose_source is not None):
             raise PanovoccError("--poses slam needs a pose source (panovocc map, or slam.run.run_map_slam)"
                                 if pose_source is None else "a pose source is only used with --poses slam")
@@ -522,9 +533,6 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     run_ids = [int(i) for i in todo[start:end]]
     todo_pos = {fid: start + k for k, fid in enumerate(run_ids)}  # frame id -> frames of the run before it
-    if shards is not None and (schedule is not None or online is not None or observer is not None):
-        raise PanovoccError("a sharded run (--workers/--scheduler) maps frames independently: it cannot be combined "
-                            "with --poses slam, the drift ablation or a live log")
     stream = (() if shards is not None else prefetched(frames, run_ids) if schedule is None and online is None
               else ((i, frames(i)) for i in run_ids))
     try:

@@ -245,6 +245,9 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
     assert not (tmp_path / "f").exists()
     code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--workers", "2", "--scheduler", "x"])
     assert code == 2 and "not both" in err
+    code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--workers", "1", "--frame-times",
+                                    tmp_path / "t.csv"])
+    assert code == 2 and "--frame-times" in err and not (tmp_path / "f").exists()
     with pytest.raises(PanovoccError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         with dask_client("tcp://127.0.0.1:9", timeout="2s"):
             pass
