@@ -89,6 +89,12 @@ def warm_task(cfg_json: str, code: str, frame_id: int) -> int:
     return os.getpid()
 
 
+def code_task(code: str) -> int:
+    """On a worker: refuse when it runs other code than the client's (:func:`~.tasks.check_code`); its pid."""
+    check_code(code, "a worker", "the client")
+    return os.getpid()
+
+
 def _records(result: tuple) -> tuple:
     return result[0], result[2], result[3]
 
@@ -128,6 +134,22 @@ class DaskShards:
         except Exception as e:  # noqa: BLE001 - a worker's failure other than bad input: one line
             raise PanovoccError(f"a shard failed on the Dask cluster ({type(e).__name__}: {e})") from None
 
+    def check_workers(self) -> None:
+        """Before anything is written: every worker runs the client's code (one line naming the first that
+        does not), and there is at least one (waiting :data:`WAIT_FOR_WORKERS_S` for it)."""
+        if not self.client.scheduler_info().get("workers"):
+            try:
+                self.client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
+            except TimeoutError:
+                raise PanovoccError(f"the Dask scheduler at {self.client.scheduler.address} has no workers (none "
+                                    f"joined within {WAIT_FOR_WORKERS_S} s): start some (docs/sharding.md)") from None
+        code, token = code_fingerprint(), uuid.uuid4().hex[:12]
+        workers = list(self.client.scheduler_info().get("workers", {}))
+        futs = [self.client.submit(code_task, code, key=f"panovocc-code-{token}-{k}", workers=[w],
+                                   allow_other_workers=True, pure=False) for k, w in enumerate(workers)]
+        for f in futs:
+            self._result(f)
+
     def warm_workers(self, cfg: MapConfig, frame_id: int) -> list:
         """Integrate frame ``frame_id`` once on every worker (discarded): the code checked, kernels loaded."""
         cfg_json, code = json.dumps(cfg.to_json(), sort_keys=True), code_fingerprint()
@@ -144,11 +166,7 @@ class DaskShards:
         if not ids:
             return
         if not self.client.scheduler_info().get("workers"):
-            try:
-                self.client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
-            except TimeoutError:
-                raise PanovoccError(f"the Dask scheduler at {self.client.scheduler.address} has no workers (none "
-                                    f"joined within {WAIT_FOR_WORKERS_S} s): start some (docs/sharding.md)") from None
+            self.check_workers()
         workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         if self.warm:
             self.warm_workers(cfg, ids[0])

@@ -97,6 +97,7 @@ def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, li
         with contextlib.ExitStack() as stack:
             client = stack.enter_context(dask_client(scheduler, workers, log=None if quiet else sys.stderr))
             shards = DaskShards(client)
+            shards.check_workers()  # other code, or no workers: one line before anything is written
             summary = _map_with(o, config, resume, overwrite, quiet, live, shards)
             summary["shards"] = shards.stats
             return summary

@@ -231,7 +231,7 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
     from cli_helpers import run_cli
 
     from panovocc_cli.benchmark.runner import dask_client
-    from panovocc_cli.benchmark.sharded import shard_task
+    from panovocc_cli.benchmark.sharded import code_task, shard_task
 
     out = tmp_path / "cli"
     code, so, err = run_cli(capsys, ["map", labelled_room, out, "--workers", "2", "--checkpoint-every", "3",
@@ -253,6 +253,8 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
             pass
     with pytest.raises(PanovoccError, match="this worker runs other code"):  # what a worker of another checkout says
         shard_task("{}", "0" * 64, [0, 1])
+    with pytest.raises(PanovoccError, match="a worker: this worker runs other code"):
+        code_task("0" * 64)
 
 
 def test_align_finds_the_transform_between_two_captures(labelled_room, tmp_path, capsys):
