@@ -128,6 +128,11 @@ def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_wo
         client.wait_for_workers(3)
         assert set(client.run(os.getpid).values()) != pids  # ... and was replaced by the nanny
         assert folder_bytes(out) == want
+        # workers of another checkout (their code fingerprint differs): one line, before anything is written
+        client.run(lambda: setattr(__import__("panovocc_cli.benchmark.tasks", fromlist=["x"]), "code_fingerprint",
+                                   lambda: "f" * 64))
+        with pytest.raises(PanovoccError, match="a worker: this worker runs other code"):
+            DaskShards(client).check_workers()
     assert [r[:2] for r in _records(out)] == [(1, i) for i in range(N)]
 
 
