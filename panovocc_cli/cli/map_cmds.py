@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import List
 
-import numpy as np
 import typer
 
 from ..errors import PanovoccError
@@ -261,6 +260,8 @@ def merge_cmd(
 ) -> None:
     """The exact sum of maps made with the same mapping parameters, vocabulary and origin: a map folder
     that exports, revises and merges like any other (docs/sharding.md)."""
+    import numpy as np
+
     from ..mapping.merge import run_merge
 
     if len(paths) < 3:
