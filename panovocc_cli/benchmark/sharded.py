@@ -30,7 +30,7 @@ import uuid
 
 from ..errors import PanovoccError
 from ..mapping.config import MapConfig
-from ..mapping.shards import decode_partial, integrate_shard, shard_ranges, sum_partials
+from ..mapping.shards import decode_partial, integrate_shard, shard_ranges, sum_partials, warm_kernels
 from .tasks import check_code, code_fingerprint
 
 WAIT_FOR_WORKERS_S = 60  # a scheduler without workers: how long to wait for the first one
@@ -110,7 +110,8 @@ class DaskShards:
     ----------
     client : distributed.Client
     shards_per_worker : shards per worker (the frames are cut into ``workers x shards_per_worker`` runs)
-    warm : first integrate one frame on every worker (each checks its code; timing runs start warm)
+    warm : first integrate one frame on every worker (each checks its code) and load the client's memory
+        kernels (timing runs start warm)
 
     After a run, :attr:`stats` holds the shard count, workers, the bytes sent back: records (to the
     client) and partial memories (to the tree's sums; its root to the client), the wall seconds of the run
@@ -170,6 +171,7 @@ class DaskShards:
         workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         if self.warm:
             self.warm_workers(cfg, ids[0])
+            warm_kernels(cfg.mapper_config())  # the client's add of the root: kernels loaded before the clock
         t0, c0 = time.perf_counter(), time.process_time()
         cfg_json, code = json.dumps(cfg.to_json(), sort_keys=True), code_fingerprint()
         ranges = shard_ranges(ids, workers * self.shards_per_worker)
