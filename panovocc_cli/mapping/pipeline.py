@@ -453,20 +453,19 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                                 "with --overwrite", out)
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
+        todo = frame_ids(cfg.frames, len(seq))  # the run's frames (--frames: a part of the sequence)
         if has_store(out):
             _require_deltas(out)
             mapper = Mapper.load(out, frame_source=frames.read, roll_back=True)  # a truncated log: as if killed
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))
-            todo = frame_ids(cfg.frames, len(seq))
             if start > len(todo) or not np.array_equal(ids, todo[:start]) or not np.array_equal(
                     saved, seq.poses[todo[:start]]):
                 mapper.close()
                 raise PanovoccError("the sequence's poses changed since the run started (use revise)", out)
         else:
             mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
-        todo = frame_ids(cfg.frames, len(seq))
     else:
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
