@@ -82,6 +82,11 @@ def test_frames_range_keeps_sequence_ids_and_refuses_bad_ranges(labelled_room, t
         assert m.frame_ids == [2, 3, 4]
     finally:
         m.close()
+    # a --frames run killed after 1 frame resumes to the uninterrupted run's bytes
+    cut = tmp_path / "cut"
+    run_map(_cfg(labelled_room, cut, frames="2:5"), progress=False, stop_after=1)
+    run_map(resume_out=cut, progress=False)
+    assert folder_bytes(cut) == folder_bytes(out)
     assert frame_ids("0:2,5:", 8).tolist() == [0, 1, 5, 6, 7]
     for bad in ("5:2", "0:9", "a:b", "3", "0:4,2:6", ":"):
         with pytest.raises(PanovoccError, match="--frames"):
