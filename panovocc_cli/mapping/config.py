@@ -108,9 +108,11 @@ MERGED_FROM = "merged_from"  # config.json of a merge of maps of several sequenc
 
 
 def several_sequences(raw: dict) -> bool:
-    """Whether a map folder's ``config.json`` (parsed) is a merge of maps of several sequences (its frame ids
-    no longer name one sequence's frames: it cannot be revised or resumed)."""
-    return len({m["seq"] for m in raw.get(MERGED_FROM) or []}) > 1
+    """Whether a map folder's ``config.json`` (parsed) is a merge of maps of several sequences, or of maps
+    renumbered (``merge --renumber``): its frame ids no longer name one sequence's frames, so it cannot be
+    revised or resumed."""
+    sources = raw.get(MERGED_FROM) or []
+    return len({m["seq"] for m in sources}) > 1 or any(int(m.get("first_id", 0)) != 0 for m in sources)
 
 
 def parse_frames(text) -> str:

@@ -136,7 +136,7 @@ def _write(out: Path, maps, cfgs, mappers, plan, sources, transform, progress: b
 
     first = cfgs[0]
     ids = [new for new, _, _ in plan]
-    one_seq = len({s["seq"] for s in sources}) == 1
+    one_seq = not several_sequences({MERGED_FROM: sources})  # ids still the one sequence's indices
     n_seq = read_meta(first.seq).frames if one_seq and Path(first.seq, "meta.json").is_file() else None
     frames = None if n_seq is not None and ids == list(range(n_seq)) else frames_spec(ids)
     cfg = dataclasses.replace(first, out=str(out.resolve()), frames=frames if one_seq else None)

@@ -295,3 +295,18 @@ def test_align_finds_the_transform_between_two_captures(labelled_room, tmp_path,
     code, so, e = run_cli(capsys, ["merge", m1, m2, tmp_path / "m12", "--renumber", "--align", "--quiet"])
     assert code == 0, e
     assert "--align: MAP_B registered onto MAP_A" in so
+
+
+def test_a_renumbered_merge_of_one_sequence_is_not_revised_from_the_wrong_frames(labelled_room, tmp_path, capsys):
+    from cli_helpers import run_cli
+
+    from panovocc_cli.mapping.config import SemanticParams
+
+    geo = SemanticParams(segmenter="none")
+    a, b, out = tmp_path / "a", tmp_path / "b", tmp_path / "ab"
+    run_map(_cfg(labelled_room, a, frames="0:2", semantic=geo), progress=False)
+    run_map(_cfg(labelled_room, b, frames="2:4", semantic=geo), progress=False)
+    code, _, err = run_cli(capsys, ["merge", a, b, out, "--renumber", "--quiet"])  # b's ids become 4, 5
+    assert code == 0, err
+    code, _, err = run_cli(capsys, ["revise", out, labelled_room / "poses.txt"])
+    assert code == 2 and "cannot be revised" in err
