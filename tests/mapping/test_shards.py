@@ -123,6 +123,11 @@ def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_wo
             s = run_map(_cfg(labelled_room, out), progress=False, shards=shards)
             assert s["integrated"] == N and shards.stats["workers"] == n and shards.stats["shards"] == min(N, 2 * n)
             assert folder_bytes(out) == want, n
+        # a run killed after 3 frames, resumed on the workers
+        out = tmp_path / "resumed"
+        run_map(_cfg(labelled_room, out), progress=False, stop_after=3)
+        run_map(resume_out=out, progress=False, shards=DaskShards(client))
+        assert folder_bytes(out) == want
         # a worker process that exits in the middle of a shard: the shard is computed again elsewhere
         mark = tmp_path / "exited"
         client.run(lambda: os.environ.__setitem__(EXIT_HOOK_ENV, str(mark)))
