@@ -8,7 +8,7 @@ DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
 DEMO := work/demo
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: setup demo test test-quick bench bench-render bench-scale reproduce-tables clean help
+.PHONY: setup demo test test-quick bench bench-render bench-scale bench-shards reproduce-tables clean help
 
 help:
 	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
@@ -16,6 +16,7 @@ help:
 	@echo "make test-quick  the suite without the end-to-end runs marked slow (pytest -m 'not slow')"
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
+	@echo "make bench-shards  map frames/s on 1 and 2 Dask workers (one thread each), the bytes a shard sends back"
 	@echo "make bench-scale  the long-term memory at building scale: RAM, disk, time per frame early and late, revise"
 	@echo "make pan-holo  the embedded Pan-Holo split: a house, realistic depth, 300 frames, lifted ground truth"
 	@echo "make gt-protocol  lifted ground truth and the mapper against mesh truth (4 seeds, clean and realistic depth)"
@@ -56,6 +57,10 @@ bench: setup
 # map, revise 1,000 frames; one table in work/bench-scale/scale.{md,csv,json}. SCALE_ARGS: e.g. --scene house.
 bench-scale: setup
 	$(BIN)/python -m panovocc_cli.benchmark.scale work/bench-scale $(SCALE_ARGS)
+
+# map --workers (docs/sharding.md): frames/s on 1 and 2 local Dask workers, one thread each, same frames
+bench-shards: setup
+	NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m panovocc_cli.benchmark.shardbench work/bench-shards
 
 bench-render: setup
 	$(BIN)/panovocc synth work/bench-scene --seed 0

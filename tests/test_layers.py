@@ -32,6 +32,7 @@ RUNNERS = {
     "mapping/pipeline.py": "the map and revise run loops: read a sequence, write the map folder, progress bar",
     "mapping/mapper.py": "Mapper.save / Mapper.load: a map folder's config, memory and poses (io/mapstore.py)",
     "mapping/rpu.py": "the delta store: each frame's delta, the commit journal and snapshots go to the folder",
+    "mapping/merge.py": "panovocc merge: reads the input map folders, writes the merged map folder, progress bar",
     "slam/run.py": "map --poses slam: writes trajectory.tum and slam.json beside the map",
 }
 FILE_CALLS = {"open", "print", "imread", "imwrite", "load", "save", "savez", "savez_compressed", "tqdm",

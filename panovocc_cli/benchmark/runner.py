@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -78,28 +79,41 @@ def _run_in_process(todo: list[Task], cache: Path, results: dict, bar: "_Bar") -
         bar.update(t, results[t.key])
 
 
-def _run_dask(todo, cache: Path, results: dict, bar: "_Bar", scheduler, workers: int, client, log) -> None:
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int = 2, client=None, log=None, timeout: str = "30s",
+                env: dict | None = None):
+    """A ``distributed.Client``: ``client`` itself when given; else one connected to the scheduler at
+    ``scheduler`` (one line, :class:`PanovoccError`, when it cannot be reached within ``timeout``); else a
+    new ``LocalCluster`` of ``workers`` processes with one thread each (:data:`WORKER_ENV`, plus ``env``),
+    closed on exit. ``log``: a stream for one line naming the workers and the dashboard."""
     from contextlib import ExitStack
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     with ExitStack() as stack:
         if client is None:
             if scheduler:
                 try:
-                    client = stack.enter_context(Client(scheduler, timeout="30s"))
+                    client = stack.enter_context(Client(scheduler, timeout=timeout))
                 except (OSError, TimeoutError) as e:
                     raise PanovoccError(f"cannot reach the Dask scheduler at {scheduler} ({e})") from None
             else:
                 cluster = stack.enter_context(LocalCluster(
                     n_workers=max(1, workers), threads_per_worker=1, processes=True, dashboard_address=":0",
-                    env=dict(WORKER_ENV), silence_logs=40))
+                    env={**WORKER_ENV, **(env or {})}, silence_logs=40))
                 client = stack.enter_context(Client(cluster))
-        if bar.enabled:
+        if log is not None:
             n = len(client.scheduler_info().get("workers", {}))
             link = getattr(client, "dashboard_link", None)
             print(f"dask: {n} worker(s) at {client.scheduler.address}" + (f", dashboard {link}" if link else ""),
                   file=log, flush=True)
+        yield client
+
+
+def _run_dask(todo, cache: Path, results: dict, bar: "_Bar", scheduler, workers: int, client, log) -> None:
+    from distributed import as_completed
+
+    with dask_client(scheduler, workers, client, log if bar.enabled else None) as client:
         futures: dict[str, Any] = {}
         by_future = {}
         for t in todo:

@@ -70,6 +70,14 @@ def code_fingerprint() -> str:
     return h.hexdigest()
 
 
+def check_code(code: str, what: str, theirs: str) -> None:
+    """Refuse to run on a worker whose :func:`code_fingerprint` is not ``code`` (the client's): one line
+    naming ``what`` runs and ``theirs`` (who sent it)."""
+    if code != code_fingerprint():
+        raise PanovoccError(f"{what}: this worker runs other code ({code_fingerprint()[:12]}) than {theirs} "
+                            f"({code[:12]}); workers and client must share one panovocc checkout")
+
+
 def code_commit() -> str:
     """The last git commit that changed the package (``panovocc_cli/``), ``+dirty`` when the working tree
     has uncommitted changes there; ``unknown`` outside a git checkout. Stable across commits that touch
@@ -235,9 +243,8 @@ def execute(task: dict, cache: str, *deps_done: Any) -> dict:
     done = read_done(cache, kind, key)
     if done is not None:
         return {**done, "status": "cached", "seconds": 0.0}
-    if task["code"] and task["code"] != code_fingerprint():
-        raise PanovoccError(f"task {task['label']}: this worker runs other code ({code_fingerprint()[:12]}) than "
-                            f"the sweep ({task['code'][:12]}); workers and client must share one panovocc checkout")
+    if task["code"]:
+        check_code(task["code"], f"task {task['label']}", "the sweep")
     final = task_folder(cache, kind, key)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp, held = _live_tmp(final.parent, key)

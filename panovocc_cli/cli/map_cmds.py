@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import List
 
 import typer
 
@@ -38,12 +39,19 @@ def map_cmd(
                                   help="The viewer's gRPC URL for --rerun-connect (default "
                                        "rerun+http://127.0.0.1:9876/proxy)."),
     rerun_every: int = typer.Option(10, "--rerun-every", min=1, help="Frames between two logs of the growing map."),
+    workers: int = typer.Option(0, "--workers", min=0, help="Integrate the frames in shards on a local Dask cluster "
+                                "of N worker processes (one thread each); 0 = in this process. The map's bytes "
+                                "do not depend on N (docs/sharding.md)."),
+    scheduler: str = typer.Option(None, "--scheduler", metavar="ADDRESS", show_default=False,
+                                  help="Integrate the frames in shards on the workers of this running Dask "
+                                       "scheduler (tcp://HOST:8786); they must see SEQ at the same path and run "
+                                       "this checkout (docs/sharding.md)."),
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
     (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
     live = _live_log(rerun, rerun_connect, rerun_url, rerun_every, overwrite, o)
     try:
-        summary = _map(o, config, resume, overwrite, quiet, live)
+        summary = _map(o, config, resume, overwrite, quiet, live, workers, scheduler)
         if live is not None:
             live.close(ok=True)
     finally:
@@ -74,7 +82,28 @@ def _live_log(rrd, connect: bool, url, every: int, overwrite: bool, o: OptionVal
     return LiveLog(rrd=rrd, connect=(url or "") if connect else None, every=every)
 
 
-def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live) -> dict:
+def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live, workers: int = 0,
+         scheduler: str | None = None) -> dict:
+    if workers or scheduler:
+        import contextlib
+        import sys
+
+        from ..benchmark.runner import dask_client
+        from ..benchmark.sharded import DaskShards
+
+        if workers and scheduler:
+            raise PanovoccError("give --workers N (a local cluster) or --scheduler ADDRESS (a running one), not both")
+        with contextlib.ExitStack() as stack:
+            client = stack.enter_context(dask_client(scheduler, workers, log=None if quiet else sys.stderr))
+            shards = DaskShards(client)
+            shards.check_workers()  # other code, or no workers: one line before anything is written
+            summary = _map_with(o, config, resume, overwrite, quiet, live, shards)
+            summary["shards"] = shards.stats
+            return summary
+    return _map_with(o, config, resume, overwrite, quiet, live, None)
+
+
+def _map_with(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live, shards) -> dict:
     from ..mapping.pipeline import run_map
 
     seq, out = o["seq"], o["out"]
@@ -85,7 +114,7 @@ def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, li
         given = [o.flags[n] for n in o.given if n not in ("seq", "out")] + (["--config"] if config is not None else [])
         if given:
             raise PanovoccError(f"--resume reuses the run's saved config; {', '.join(sorted(given))} cannot change it")
-        return run_map(resume_out=target, progress=not quiet, observer=live)
+        return run_map(resume_out=target, progress=not quiet, observer=live, shards=shards)
     else:
         from_file = apply_config_file(o, config) if config is not None else set()
         seq, out = o["seq"], o["out"]
@@ -99,10 +128,13 @@ def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, li
                            occupancy=build_config(OccupancyParams, o), semantic=build_config(SemanticParams, o),
                            ablation=build_config(AblationParams, o))
         if cfg.poses == POSES_SLAM:  # poses estimated online (slam/run.py); SEQ/poses.txt is never read
+            if shards is not None:
+                raise PanovoccError("--poses slam tracks the frames in order, in one process: it cannot be sharded "
+                                    "(--workers/--scheduler)")
             from ..slam.run import run_map_slam
 
             return run_map_slam(cfg, overwrite=overwrite, progress=not quiet, observer=live)
-        return run_map(cfg, overwrite=overwrite, progress=not quiet, observer=live)
+        return run_map(cfg, overwrite=overwrite, progress=not quiet, observer=live, shards=shards)
 
 
 def _report(summary: dict) -> None:
@@ -113,6 +145,11 @@ def _report(summary: dict) -> None:
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
                f"(update {summary['update_ms_per_frame']:.1f} ms{seg}): {summary['occupied']} occupied{classed}, "
                f"{summary['free']} free voxels -> {summary['out']}")
+    if summary.get("shards"):
+        st = summary["shards"]
+        typer.echo(f"shards: {st['shards']} on {st['workers']} worker(s); sent back {st['record_bytes'] / 1e6:.1f} MB "
+                   f"of delta records ({st['record_bytes'] / max(st['frames'], 1) / 1e6:.3f} MB a frame) and "
+                   f"{st['partial_bytes'] / 1e6:.1f} MB of partial memories ({st['root_bytes'] / 1e6:.1f} MB summed)")
     if "slam" in summary:
         sl = summary["slam"]
         unplaced = sl["unplaced_frames"]
@@ -205,3 +242,46 @@ def apply_config_file(o: OptionValues, path: Path) -> set:
         o[key] = value
         used.add(key)
     return used
+
+
+@app.command("merge")
+def merge_cmd(
+    paths: List[Path] = typer.Argument(..., help="MAP_A MAP_B [MAP_C ...] OUT: map folders, then the merged map's "
+                                       "folder."),
+    transform: Path = typer.Option(None, "--transform", metavar="FILE", show_default=False,
+                                   help="A 4x4 matrix (4 lines of 4 numbers) taking MAP_B's world into MAP_A's: "
+                                        "MAP_B's frames are integrated again under it, in MAP_A's frame."),
+    align: bool = typer.Option(False, "--align", help="Find --transform by registering MAP_B's occupied voxels onto "
+                               "MAP_A's (the SLAM front end's GICP; from the identity, or from --transform)."),
+    renumber: bool = typer.Option(False, "--renumber", help="Maps of separate captures: shift each map's frame ids "
+                                  "past the previous maps' (else colliding ids are refused)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a map already in OUT."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """The exact sum of maps made with the same mapping parameters, vocabulary and origin: a map folder
+    that exports, revises and merges like any other (docs/sharding.md)."""
+    import numpy as np
+
+    from ..mapping.merge import run_merge
+
+    if len(paths) < 3:
+        raise PanovoccError("expected MAP_A MAP_B [MAP_C ...] OUT")
+    maps, out = paths[:-1], paths[-1]
+    T = None
+    if transform is not None:
+        from ..io.poses import read_transform
+
+        T = read_transform(transform)
+    if align:
+        from ..mapping.merge import occupied_points
+        from ..slam.registration import register_points
+
+        if len(maps) != 2:
+            raise PanovoccError("--align registers the second of exactly two maps onto the first")
+        T, fitness = register_points(occupied_points(maps[0]), occupied_points(maps[1]), T)
+        typer.echo(f"--align: MAP_B registered onto MAP_A, fitness {fitness:.3f}, translation "
+                   f"{np.round(T[:3, 3], 3).tolist()} m")
+    s = run_merge(maps, out, overwrite=overwrite, transform=T, renumber=renumber, progress=not quiet)
+    classed = f", {s['classed']} with a class" if "classed" in s else ""
+    typer.echo(f"merged {s['maps']} maps ({s['frames']} frames): {s['occupied']} occupied{classed}, {s['free']} free "
+               f"voxels -> {s['out']}")

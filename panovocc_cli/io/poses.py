@@ -129,11 +129,7 @@ def read_first_pose(path: str | Path, stamp: float = 0.0, max_diff: float | None
     rows = _rows(path)
     width = len(rows[0][1])
     if width == 4:
-        if len(rows) != 4 or any(len(parts) != 4 for _, parts in rows):
-            raise PanovoccError(f"a 4x4 matrix: {len(rows)} lines of {[len(p) for _, p in rows]} numbers; expected "
-                                "4 lines of 4 numbers (T_world_cam row-major)", path)
-        T = np.stack([_floats(path, n, parts) for n, parts in rows])
-        return _checked_pose(T, path, "4x4 matrix")
+        return _matrix(path, rows)
     if width not in (16, 8):
         raise PanovoccError(f"line {rows[0][0]}: {width} numbers; expected a 4x4 matrix (4 lines of 4 numbers), "
                             "16 numbers a line (NICE-SLAM form) or 8 (TUM form: t tx ty tz qx qy qz qw)", path)
@@ -146,6 +142,21 @@ def read_first_pose(path: str | Path, stamp: float = 0.0, max_diff: float | None
         raise PanovoccError(f"no pose within {max_diff} of the first frame's timestamp {stamp:g} (TUM timestamps "
                             f"{t.min():.6g} .. {t.max():.6g}; frame i has timestamp i)", path)
     return T[int(ib[0])]
+
+
+def read_transform(path: str | Path) -> np.ndarray:
+    """A rigid transform from a file of a 4x4 matrix (4 lines of 4 numbers, row-major): ``merge --transform``.
+    One line naming the file otherwise (missing, not 4x4, not rigid)."""
+    path = Path(path)
+    return _matrix(path, _rows(path))
+
+
+def _matrix(path: Path, rows) -> np.ndarray:
+    """A file's rows as one rigid 4x4 matrix (4 lines of 4 numbers, row-major), checked."""
+    if len(rows) != 4 or any(len(parts) != 4 for _, parts in rows):
+        raise PanovoccError(f"a 4x4 matrix: {len(rows)} lines of {[len(p) for _, p in rows]} numbers; expected "
+                            "4 lines of 4 numbers (T_world_cam row-major)", path)
+    return _checked_pose(np.stack([_floats(path, n, parts) for n, parts in rows]), path, "4x4 matrix")
 
 
 def frame_poses(path: str | Path, n_frames: int, stamps=None, max_diff: float | None = None) -> np.ndarray:

@@ -104,6 +104,51 @@ def check_key_reach(g: GeometryParams) -> None:
                             f"{g.max_range:g} m")
 
 
+MERGED_FROM = "merged_from"  # config.json of a merge of maps of several sequences: those maps (mapping/merge.py)
+
+
+def several_sequences(raw: dict) -> bool:
+    """Whether a map folder's ``config.json`` (parsed) is a merge of maps of several sequences, or of maps
+    renumbered (``merge --renumber``): its frame ids no longer name one sequence's frames, so it cannot be
+    revised or resumed."""
+    sources = raw.get(MERGED_FROM) or []
+    return len({m["seq"] for m in sources}) > 1 or any(int(m.get("first_id", 0)) != 0 for m in sources)
+
+
+def parse_frames(text) -> str:
+    """``--frames`` as typed: ``A:B`` (frames A..B-1 of the sequence; ``A:`` to its end, ``:B`` from 0), or
+    several such ranges separated by commas; returned with spaces removed. One line naming --frames
+    otherwise (the sequence's length is checked by :func:`frame_ids`)."""
+    spec = str(text).replace(" ", "")
+    for part in spec.split(","):
+        a, sep, b = part.partition(":")
+        if sep != ":" or not all(x == "" or x.isdigit() for x in (a, b)) or (a == b == ""):
+            raise PanovoccError(f"--frames must be A:B (frame indices, B excluded; A: to the end), or ranges "
+                                f"A:B,C:D, got {text!r}")
+    return spec
+
+
+def frame_ids(spec: str | None, n: int) -> np.ndarray:
+    """The sequence indices (ascending, distinct) a ``--frames`` spec names in a sequence of ``n`` frames
+    (None: all of them). A range that is empty, reversed, past the sequence's end, or overlapping another
+    is refused with one line naming --frames."""
+    if spec is None:
+        return np.arange(n, dtype=np.int64)
+    spec = parse_frames(spec)
+    ids: list = []
+    for part in spec.split(","):
+        a, _, b = part.partition(":")
+        lo, hi = int(a) if a else 0, int(b) if b else n
+        if not lo < hi or hi > n:
+            raise PanovoccError(f"--frames {part}: the sequence has frames 0:{n}; a range A:B needs "
+                                f"0 <= A < B <= {n}")
+        ids.extend(range(lo, hi))
+    out = np.asarray(sorted(ids), np.int64)
+    if len(np.unique(out)) != len(out):
+        raise PanovoccError(f"--frames {spec}: its ranges overlap")
+    return out
+
+
 def parse_origin(text) -> list[float]:
     """``X,Y,Z`` (metres) -> [x, y, z]; one line naming --origin otherwise."""
     try:
@@ -145,6 +190,11 @@ class MapConfig:
                                          "--poses-reference's pose of that frame). Default: the first frame, "
                                          "levelled, at the origin.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
+    # a range of the sequence's frames (ids stay the sequence's indices); None = every frame
+    frames: str | None = option(None, cli_type=str, parse=parse_frames, metavar="A:B", show_default=False,
+                                help="Map only frames A..B-1 of the sequence (A: to its end; A:B,C:D several "
+                                     "ranges); frame ids stay the sequence's indices, the origin stays the "
+                                     "sequence's first frame's, so maps of pieces merge (panovocc merge).")
     frame_times: str | None = option(None, cli_type=Path, parse=str,
                                      help="Write a CSV of every frame's cost (frame, wall and process CPU "
                                           "seconds since the first frame, update ms, checkpoint 0/1, resident "
@@ -171,6 +221,8 @@ class MapConfig:
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
+        if d["frames"] is None:  # a whole-sequence map's config.json as before --frames existed
+            del d["frames"]
         d["format_version"] = FORMAT_VERSION
         return d
 
@@ -183,6 +235,7 @@ class MapConfig:
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
                        first_pose=d.get("first_pose"),
                        checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
+                       frames=None if d.get("frames") is None else parse_frames(d["frames"]),
                        geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),
                        semantic=s, ablation=AblationParams.from_json(d.get("ablation")))

@@ -245,6 +245,39 @@ class Mapper:
         self._next_id = max(self._next_id, fid + 1)
         return fid
 
+    def delta(self, frame: Frame, observation=None) -> FrameDelta:
+        """Frame ``frame``'s delta under this map's configuration and origin, neither added nor kept (what
+        :meth:`integrate` adds; a shard worker's, :mod:`.shards`). ``observation``: a kept semantic
+        observation to use instead of the frame's logits."""
+        return self._delta(frame, observation)
+
+    @_locked
+    def keep_encoded(self, frame_id: int, payload: bytes, T_world_cam: np.ndarray, empty: bool = False) -> None:
+        """Keep frame ``frame_id``'s delta given as its record payload (:func:`.rpu.encode_record`, made by a
+        shard worker or read from another map) without adding it to the memory: the caller then adds the
+        exact sum of the deltas so kept (:meth:`add_sum`). ``empty``: the delta touches no voxel."""
+        fid = int(frame_id)
+        self._rpu.keep_encoded(fid, payload, T_world_cam)
+        if empty:
+            self.empty_frames.append(fid)
+        self._next_id = max(self._next_id, fid + 1)
+
+    @_locked
+    def record(self, frame_id: int) -> bytes:
+        """Frame ``frame_id``'s kept delta as its record payload (:func:`.rpu.encode_record`; a folder's log
+        record as it is): what :meth:`keep_encoded` takes."""
+        return self._rpu.store.payload(frame_id)
+
+    @_locked
+    def observation(self, frame_id: int):
+        """The semantic observation kept with frame ``frame_id``'s delta (None: geometry only)."""
+        return self._rpu.store.get(frame_id).observation
+
+    @_locked
+    def add_sum(self, delta: FrameDelta) -> None:
+        """Add to the memory the exact sum of deltas kept by :meth:`keep_encoded` (a partial memory)."""
+        self.memory.add(delta, +1)
+
     @_locked
     def revise(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None = None) -> bool:
         """Move frame ``frame_id`` to pose ``T_world_cam`` (4, 4): its delta is recomputed and swapped in.

@@ -41,7 +41,8 @@ from ..io.poses import frame_poses, read_first_pose, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
 from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig,
-                     MapperConfig, ReviseConfig, SemanticParams, check_key_reach)
+                     MapperConfig, ReviseConfig, SemanticParams, check_key_reach, frame_ids,
+                     several_sequences)
 from .export import point_chunks
 from .mapper import Mapper
 from .rpu import has_store
@@ -363,8 +364,13 @@ def _require_deltas(out: Path) -> None:
 
 
 def load_config(out: str | Path) -> MapConfig:
-    """The resolved :class:`MapConfig` of a map run's output folder."""
-    return MapConfig.from_json(mapstore.read_map_config(out), Path(out) / CONFIG_NAME)
+    """The resolved :class:`MapConfig` of a map run's output folder (refused for a merge of several
+    sequences' maps, which revise and resume cannot read frames for)."""
+    raw = mapstore.read_map_config(out)
+    if several_sequences(raw):
+        raise PanovoccError("a merge of maps of several sequences cannot be revised or resumed (its frame ids name "
+                            "no one sequence's frames): revise or resume the input maps and merge them again", out)
+    return MapConfig.from_json(raw, Path(out) / CONFIG_NAME)
 
 
 def _remove_unless_started(out: Path) -> None:
@@ -386,8 +392,15 @@ def map_inputs(cfg: MapConfig) -> tuple:
             None if cfg.first_pose == FIRST_POSE_REFERENCE else cfg.first_pose)
 
 
+def open_frames(cfg: MapConfig) -> SequenceFrames:
+    """The frame source of a resolved run config (its sequence, poses and segmenter): what a shard worker
+    reads its frames through (benchmark/sharded.py)."""
+    return sequence_frames(cfg, _open_sequence(cfg))
+
+
 def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, overwrite: bool = False,
-            progress: bool = True, stop_after: int | None = None, pose_source=None, observer=None) -> dict:
+            progress: bool = True, stop_after: int | None = None, pose_source=None, observer=None,
+            shards=None) -> dict:
     """Map a sequence (or resume an interrupted run in ``resume_out``).
 
     Parameters
@@ -404,6 +417,10 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
     observer : optional; ``observer.frame(i, frame, mapper, revisions)`` is called after each frame is
         integrated (and its revisions applied), ``observer.finish(mapper, summary)`` once the exports are
         written (viz/live.py: the Rerun live log). It only reads; the map is the same with or without it.
+    shards : optional; the frames are integrated elsewhere: ``shards(mapper, cfg, ids)`` keeps each frame's
+        record in ``mapper`` in frame order (``Mapper.keep_encoded``), yielding its id after each, and adds
+        the exact sum of their deltas (``Mapper.add_sum``) before it ends (benchmark/sharded.py: Dask
+        workers). The folder's bytes are those of the run in this process.
 
     Returns
     -------
@@ -412,29 +429,39 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
         observations)
     """
     with contextlib.ExitStack() as held:  # the folder lock (io/lock.py), taken once the folder is known
-        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source, observer)
+        return _run_map(cfg, resume_out, overwrite, progress, stop_after, held, pose_source, observer, shards)
+
+
+def _check_shardable(cfg: MapConfig, observer) -> None:
+    """A sharded run integrates frames apart, on other processes: refuse what needs them in order, here."""
+    if cfg.poses == POSES_SLAM or cfg.ablation.perturbs or observer is not None or cfg.frame_times:
+        raise PanovoccError("a sharded run (--workers/--scheduler) maps frames independently: it cannot be combined "
+                            "with --poses slam, the drift ablation, a live log or --frame-times")
 
 
 def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.ExitStack, pose_source=None,
-             observer=None) -> dict:
+             observer=None, shards=None) -> dict:
     if resume_out is not None:
         out = Path(resume_out)
         held.enter_context(_writer_lock(out))
         cfg = load_config(out)
+        if shards is not None:
+            _check_shardable(cfg, observer)
         check_resumable(cfg.ablation, out / CONFIG_NAME)
         if cfg.poses == POSES_SLAM:
             raise PanovoccError("a --poses slam run cannot be resumed (the tracker's state is not saved); start over "
                                 "with --overwrite", out)
         seq = _open_sequence(cfg)
         frames = sequence_frames(cfg, seq)
+        todo = frame_ids(cfg.frames, len(seq))  # the run's frames (--frames: a part of the sequence)
         if has_store(out):
             _require_deltas(out)
             mapper = Mapper.load(out, frame_source=frames.read, roll_back=True)  # a truncated log: as if killed
             start = len(mapper)
             ids = np.asarray(mapper.frame_ids)
             saved = np.stack([mapper.pose(i) for i in ids]) if start else np.zeros((0, 4, 4))
-            if start > len(seq) or not np.array_equal(ids, np.arange(start)) or not np.array_equal(saved,
-                                                                                                 seq.poses[:start]):
+            if start > len(todo) or not np.array_equal(ids, todo[:start]) or not np.array_equal(
+                    saved, seq.poses[todo[:start]]):
                 mapper.close()
                 raise PanovoccError("the sequence's poses changed since the run started (use revise)", out)
         else:
@@ -443,6 +470,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg is None:
             raise ValueError("run_map needs a config or resume_out")
         cfg = validate_config(cfg)
+        if shards is not None:
+            _check_shardable(cfg, observer)
         if (cfg.poses == POSES_SLAM) != (pose_source is not None):
             raise PanovoccError("--poses slam needs a pose source (panovocc map, or slam.run.run_map_slam)"
                                 if pose_source is None else "a pose source is only used with --poses slam")
@@ -454,10 +483,14 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             raise PanovoccError("--poses-align / --poses-reference align a pose file; with --poses slam align "
                                 "afterwards (traj eval, or map --poses OUT/poses.txt --poses-align se3), or start "
                                 "the SLAM world at the reference's first pose (--first-pose reference)")
+        if cfg.poses == POSES_SLAM and cfg.frames is not None:
+            raise PanovoccError("--frames maps a part of a sequence with known poses; --poses slam tracks the whole "
+                                "sequence from its first frame")
         if cfg.poses == POSES_SLAM and cfg.ablation.perturbs:
             raise PanovoccError("the drift-and-correction ablation perturbs given poses; it cannot be combined with "
                                 "--poses slam")
         seq = _open_sequence(cfg)
+        todo = frame_ids(cfg.frames, len(seq))  # a bad --frames range: one line, before any write
         cfg = resolve_origin(resolve(cfg, seq.meta.width), seq.poses)
         cfg = dataclasses.replace(cfg, semantic=resolve_semantic(cfg.semantic, seq))
         frames = sequence_frames(cfg, seq)  # builds the segmenter: fails before any file is written
@@ -482,7 +515,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if pose_source is None:
             write_poses(out / "poses.txt", seq.poses)
         mapper, start = Mapper(cfg.mapper_config(), folder=out, frame_source=frames.read), 0
-    n = len(seq)
+    n = len(todo)  # the frames this run maps (--frames: a part of the sequence; ids are the sequence's indices)
     end = n if stop_after is None else min(n, stop_after)
     from tqdm import tqdm
 
@@ -497,8 +530,10 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     times = [] if cfg.frame_times else None
     c0 = time.process_time()
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
-    stream = (prefetched(frames, range(start, end)) if schedule is None and online is None
-              else ((i, frames(i)) for i in range(start, end)))
+    run_ids = [int(i) for i in todo[start:end]]
+    todo_pos = {fid: start + k for k, fid in enumerate(run_ids)}  # frame id -> frames of the run before it
+    stream = (() if shards is not None else prefetched(frames, run_ids) if schedule is None and online is None
+              else ((i, frames(i)) for i in run_ids))
     try:
         for i, frame in stream:
             revisions = []
@@ -524,13 +559,18 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if observer is not None:
                 observer.frame(i, frame, mapper, revisions)
             bar.update(1)
-            done = i + 1
+            done = todo_pos[i] + 1
             ck = bool(cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n)
             if ck:
                 mapper.checkpoint(background=True)  # a COMMIT record after the pending delta writes
             if times is not None:
                 times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
                               resident_mb()))
+        for i in (shards(mapper, cfg, run_ids) if shards is not None else ()):  # records kept in frame order
+            bar.update(1)
+            done = todo_pos[i] + 1
+            if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
+                mapper.checkpoint(background=True)
     except (PanovoccError, OSError) as e:  # found mid-run: say what is on disk and what can be done with it
         what = str(e) if isinstance(e, PanovoccError) else f"{e.filename}: {e.strerror or e}"
         if cfg.poses == POSES_SLAM:  # --resume refuses these (the tracker's state is not saved)
@@ -612,17 +652,18 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     _require_deltas(out)
     mapper = Mapper.load(out)
     try:
-        k = len(mapper)
-        if k < n_seq:
-            raise PanovoccError(f"the map is incomplete ({k} of {n_seq} frames; run map --resume first)", out)
-        if k > n_seq or mapper.frame_ids != list(range(k)):
+        k, ids = len(mapper), mapper.frame_ids
+        want = [int(i) for i in frame_ids(cfg.frames, n_seq)]  # --frames: the range the map was made of
+        if k < len(want) and ids == want[:k]:
+            raise PanovoccError(f"the map is incomplete ({k} of {len(want)} frames; run map --resume first)", out)
+        if ids != want:
             raise PanovoccError(f"sequence now has {n_seq} frames, the map has {k}", cfg.seq)
-        if len(new_poses) != k:
-            raise PanovoccError(f"{len(new_poses)} poses, the map has {k} frames", poses_path)
+        if len(new_poses) != n_seq:
+            raise PanovoccError(f"{len(new_poses)} poses, the sequence has {n_seq} frames", poses_path)
         seq = _open_sequence(dataclasses.replace(cfg, poses=str(poses_path)), new_poses)
         reader = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
         mapper.frame_source = reader
-        changed = [i for i in range(k) if not np.array_equal(new_poses[i], mapper.pose(i))]
+        changed = [i for i in ids if not np.array_equal(new_poses[i], mapper.pose(i))]
         from tqdm import tqdm
 
         t0 = time.perf_counter()

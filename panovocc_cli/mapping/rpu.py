@@ -106,6 +106,12 @@ def _observation_arrays(delta: FrameDelta):
     return None if delta.observation is None else delta.observation.to_arrays()
 
 
+def encode_record(delta: FrameDelta, T_world_cam: np.ndarray) -> bytes:
+    """A PUT record's payload of a frame delta computed under ``T_world_cam``: what :class:`DeltaStore`
+    appends for the frame, and what a shard worker sends back (:mod:`.shards`), byte for byte."""
+    return mapstore.encode_delta(_record_parts(delta), T_world_cam, _observation_arrays(delta))
+
+
 def has_store(folder: str | Path) -> bool:
     """Whether ``folder`` holds a map's deltas (a log or a memory snapshot)."""
     folder = Path(folder)
@@ -177,6 +183,15 @@ class DeltaStore:
                                 "(the map folder was changed by another process)", path)
         return _frame_delta(parts, obs)
 
+    def payload(self, frame_id: int) -> bytes:
+        """The PUT payload of ``frame_id``'s kept delta (:func:`encode_record`): the log record's bytes as they
+        are (a merge appends them unchanged), or, for a delta kept in RAM or a file of its own, encoded."""
+        fid = int(frame_id)
+        if fid in self.poses and self.folder is not None and self._locs[fid][0] != LEGACY and (
+                self._inflight is None or self._inflight[0] != fid):
+            return self._log.read(self._locs[fid])
+        return encode_record(self.get(fid), self.poses[fid])
+
     def nbytes(self) -> int:
         """Bytes of the kept deltas on disk (the log's live records; 0 in RAM)."""
         return sum(int(loc[2]) + 32 for loc in self._locs.values() if loc[0] != LEGACY)
@@ -201,6 +216,25 @@ class DeltaStore:
 
     def _append_put(self, fid: int, parts, T, observation=None) -> None:
         self._locs[fid] = self._log.append(mapstore.PUT, fid, mapstore.encode_delta(parts, T, observation))
+
+    def put_encoded(self, frame_id: int, payload: bytes, T_world_cam: np.ndarray) -> None:
+        """Keep a new frame's delta given as its record payload (:func:`encode_record`, made elsewhere: a shard
+        worker, another map's log), appended as it is; the memory's side is the caller's."""
+        fid = int(frame_id)
+        T = np.array(T_world_cam, np.float64)
+        if self.folder is None:
+            rec = mapstore.decode_record(payload)
+            d = _frame_delta(rec.parts, rec.observation)
+            self.poses[fid] = T
+            self._ram[fid] = (_compact_parts(d), d.observation)
+            return
+        self.flush()
+        self._inflight = (fid, None, None, self.poses.get(fid), self._locs.get(fid))
+        self.poses[fid] = T
+        self._submit(self._append_payload, fid, payload)
+
+    def _append_payload(self, fid: int, payload: bytes) -> None:
+        self._locs[fid] = self._log.append(mapstore.PUT, fid, payload)
 
     def drop(self, frame_id: int) -> None:
         """Forget frame ``frame_id`` (a DROP record; committed with the next checkpoint or save)."""
@@ -291,8 +325,7 @@ class DeltaStore:
         self.folder, self._log, self._locs = folder, log, {}
         for fid in self.ids():
             d = reading.get(fid)
-            self._locs[fid] = log.append(mapstore.PUT, fid, mapstore.encode_delta(
-                _record_parts(d), self.poses[fid], _observation_arrays(d)))
+            self._locs[fid] = log.append(mapstore.PUT, fid, encode_record(d, self.poses[fid]))
             self._ram.pop(fid, None)  # free the RAM copy as soon as its record is written
         if old[2] is not None:
             old[2].close()
@@ -363,6 +396,15 @@ class ReversibleMemory:
         delta = _as_frame_delta(delta)
         self.memory.add(delta, +1)
         self.store.put(frame_id, delta, T_world_cam)
+
+    def keep_encoded(self, frame_id: int, payload: bytes, T_world_cam: np.ndarray) -> None:
+        """Keep a new frame's delta given as its record payload, without adding it to the memory: the caller
+        adds the sum of such deltas (a sharded run's partial memories, a merge's inputs) with
+        ``memory.add``, so the memory is again the exact sum of the kept deltas."""
+        self._flush()
+        if frame_id in self.store:
+            raise PanovoccError(f"frame {frame_id} is already in the map (revise or remove it)")
+        self.store.put_encoded(frame_id, payload, T_world_cam)
 
     def revise(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray,
                old: FrameDelta | None = None) -> None:

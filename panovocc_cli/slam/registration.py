@@ -157,3 +157,19 @@ def open3d_threads(n: int):
             yield
     finally:
         o3d.utility.set_max_threads(before)
+
+
+def register_points(target: np.ndarray, source: np.ndarray, init: np.ndarray | None = None, voxel_m: float = 0.1,
+                    max_corr_m: float = 0.5, rounds: int = 3) -> tuple[np.ndarray, float]:
+    """The rigid transform (4, 4) float64 taking ``source`` points (n, 3) onto ``target`` points (m, 3) (both
+    metres, e.g. two maps' occupied voxel centres, ``merge --align``), from ``init`` (identity), by GICP in
+    ``rounds`` passes with the correspondence distance halved each pass; and its fitness (inlier share).
+    Deterministic (one thread)."""
+    reg = Registration(voxel_m=voxel_m, max_iterations=60)
+    t, s = reg.prepare(target), reg.prepare(source)
+    T = np.eye(4) if init is None else np.asarray(init, np.float64)
+    fit = 0.0
+    for k in range(rounds):
+        r = reg.align(t, s, T, max_corr_m / 2 ** k)
+        T, fit = r.T_target_source, r.fitness
+    return T, fit
