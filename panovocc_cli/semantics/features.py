@@ -1,0 +1,118 @@
+"""Language-aligned features per voxel: the projection, the quantisation and the scores (pure maths, no I/O).
+
+A map made with ``--features`` keeps, beside its class evidence, a channel ``Z`` of fused embeddings: each
+measurement pixel's embedding (the segmenter's, in its own dimension F: CLIP's image space for ``clip``, the
+MiniLM text space for ``simulated``) is projected to the map's D dimensions by a fixed matrix
+(:func:`projection`: seeded, so the map saves only its seed and D), normalised and quantised to integers in
+1/127 steps (:func:`quantize_features`, int8, kept in the frame's observation so that ``revise`` never
+runs the segmenter). A voxel's per-frame delta is its weight ``s`` (the ``S`` channel's integer weight)
+times the eta-weighted mean of its pixels' quantised features, rounded (:mod:`panovocc_cli.mapping.
+contributors`): exact integers, so revise, remove and resume stay bit for bit, and ``Z / S`` is the voxel's
+weighted mean feature in 1/(64 * 127) steps.
+
+Asking such a map: a text is embedded by the encoder that matches the map's features, projected by the
+same matrix (:func:`project`) and compared by cosine with each voxel's ``Z`` (:func:`feature_scores`).
+Relabelling to any vocabulary (:func:`feature_evidence`): each voxel's cosines to the words give a
+softmax distribution, written back in the form of the class evidence ``E`` (integer steps times the voxel's
+weight), so the map's own export (GSC, nearest-evidence transfer) labels the voxels; a voxel whose best
+cosine is below ``min_similarity`` puts its weight on one more column, exported as occupied-unclassed (254).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import PanovoccError
+
+DEFAULT_FEATURE_DIM = 64
+FEATURE_SEED = 24  # the projection's seed (saved in a map's config.json with D)
+FEATURE_STEPS = 127  # a pixel's unit feature in 1/127 steps (int8)
+MAX_FEATURE_DIM = 1024
+#: relabel by features: softmax temperature over the words' cosines, and the cosine below which a voxel
+#: takes no word (occupied-unclassed, 254). Chosen on homes of seeds 100-101 (docs/semantics.md).
+DEFAULT_FEATURE_TEMPERATURE = 0.05
+DEFAULT_FEATURE_MIN_SIMILARITY = 0.3
+#: query by features: voxels within this cosine of the best voxel's and above ``min_similarity`` match.
+DEFAULT_FEATURE_MARGIN = 0.1
+
+
+def projection(source_dim: int, dim: int, seed: int = FEATURE_SEED) -> np.ndarray:
+    """The fixed projection ``(source_dim, dim)`` float64 of a map: Gaussian entries from
+    ``default_rng([seed, source_dim, dim])``, columns made orthonormal (QR) when ``dim <= source_dim``, so a
+    vector's projection keeps its length and cosines are kept up to the random subspace's distortion
+    (about ``1 / sqrt(dim)``). The same arguments give the same bytes on every machine."""
+    F, D = int(source_dim), int(dim)
+    if F < 1 or not 1 <= D <= MAX_FEATURE_DIM:
+        raise PanovoccError(f"feature projection {F} -> {D}: expected source dimension >= 1 and 1 <= D <= "
+                            f"{MAX_FEATURE_DIM}")
+    g = np.random.default_rng([int(seed), F, D]).standard_normal((F, D))
+    if D <= F:
+        q, r = np.linalg.qr(g)
+        g = q * np.where(np.diag(r) < 0, -1.0, 1.0)  # sign fixed: the factorisation's choice does not matter
+    else:
+        g /= np.sqrt(F)
+    return g
+
+
+def project(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Vectors ``x (..., F)`` projected by ``P (F, D)`` and normalised to unit length (float64; a zero
+    projection stays zero)."""
+    x = np.asarray(x, np.float64)
+    if x.shape[-1] != P.shape[0]:
+        raise PanovoccError(f"features of dimension {x.shape[-1]}, the map's projection expects {P.shape[0]} (a "
+                            "different segmenter or text encoder than the map was made with)")
+    y = x @ P
+    n = np.linalg.norm(y, axis=-1, keepdims=True)
+    return np.divide(y, n, out=np.zeros_like(y), where=n > 0)
+
+
+def quantize_features(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Per-pixel features ``x (h, w, F)`` -> the observation's ``(h, w, D)`` int8: unit projections in
+    1/127 steps, ``rint(127 y)``."""
+    return np.rint(FEATURE_STEPS * project(x, P)).astype(np.int8)
+
+
+def unit_rows(Z: np.ndarray) -> np.ndarray:
+    """Rows of a stored ``Z (n, D)`` (any common scale) as unit vectors, float64; zero rows stay zero."""
+    return project(np.asarray(Z, np.float64), np.eye(np.shape(Z)[1]))
+
+
+def feature_scores(Z: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Cosine ``(n,)`` of each voxel's fused feature (``Z (n, D)``) with the projected text ``t (D,)``;
+    voxels without a feature (a zero row) score -1."""
+    U = unit_rows(Z)
+    s = U @ np.asarray(t, np.float64).reshape(-1)
+    s[~U.any(axis=1)] = -1.0
+    return s
+
+
+def feature_evidence(Z: np.ndarray, S: np.ndarray, T: np.ndarray, *, temperature: float = DEFAULT_FEATURE_TEMPERATURE,
+                     min_similarity: float = DEFAULT_FEATURE_MIN_SIMILARITY) -> tuple[np.ndarray, np.ndarray]:
+    """Class evidence over a new vocabulary from stored features.
+
+    Parameters
+    ----------
+    Z : (n, D) stored features; S : (n,) or (n, 1) the stored weight ``S`` (64 times the integer weight)
+    T : (C, D) the words' projected unit text embeddings
+    temperature : softmax temperature over the cosines; min_similarity : best cosine a voxel needs to take a word
+
+    Returns
+    -------
+    E : (n, C + 1) int64, ``(S / 64) * d`` with ``d`` the softmax distribution over the words in integer steps
+        summing to 64 (:func:`~panovocc_cli.mapping.contributors.distribution_steps`), or all 64 steps on the
+        last column when the best cosine is below ``min_similarity`` (or the voxel has no feature); row sums = S
+    best : (n,) float64, each voxel's best cosine (-1: no feature)
+    """
+    from ..mapping.contributors import D_STEPS, distribution_steps
+
+    U = unit_rows(Z)
+    cos = U @ np.asarray(T, np.float64).T
+    has = U.any(axis=1)
+    best = np.where(has, cos.max(axis=1) if cos.shape[1] else -1.0, -1.0)
+    z = (cos - cos.max(axis=1, keepdims=True)) / float(temperature)
+    p = np.exp(z)
+    p /= p.sum(axis=1, keepdims=True)
+    off = best < float(min_similarity)
+    p = np.concatenate([np.where(off[:, None], 0.0, p), off[:, None].astype(np.float64)], axis=1)
+    w = np.asarray(S, np.int64).reshape(-1) // D_STEPS
+    return w[:, None] * distribution_steps(p), best

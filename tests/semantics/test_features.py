@@ -1,0 +1,192 @@
+"""The feature memory (issue 24): a channel Z of fused, projected, quantised embeddings per voxel.
+
+Exact under revise, remove, resume (delta log round trip); the simulated segmenter's embedding mode; the
+projection; scores and relabel evidence on hand-made features.
+"""
+
+import numpy as np
+import pytest
+from semantics_helpers import write_labelled_room
+
+from panovocc_cli.errors import PanovoccError
+from panovocc_cli.io.sequence import Sequence
+from panovocc_cli.mapping import Mapper
+from panovocc_cli.mapping.config import SemanticParams
+from panovocc_cli.mapping.pipeline import MapConfig, load_config, run_map, sequence_frames
+from panovocc_cli.semantics import features as F
+
+W = 64
+N = 4
+D = 16
+
+
+def fake_encoder(dim=24):
+    """A deterministic stand-in text model (no torch): each text's hashed unit vector, so that equal words
+    embed equally and different words nearly orthogonally."""
+    import zlib
+
+    def enc(texts):
+        out = np.stack([np.random.default_rng(zlib.crc32(t.encode())).standard_normal(dim) for t in texts])
+        return (out / np.linalg.norm(out, axis=1, keepdims=True)).astype(np.float32)
+
+    return enc
+
+
+@pytest.fixture(scope="module")
+def fmapped(tmp_path_factory):
+    """The labelled room mapped with --features (D = 16); the simulated segmenter's text model replaced by
+    :func:`fake_encoder` (its embedding space), so that no torch is loaded."""
+    from panovocc_cli.semantics.simulated import SimulatedSegmenter
+
+    root = tmp_path_factory.mktemp("featseq")
+    seq = write_labelled_room(root / "room", W, N)
+    mp = pytest.MonkeyPatch()
+    mp.setattr(SimulatedSegmenter, "text_encoder", lambda self: fake_encoder())
+    out = root / "m"
+    run_map(MapConfig(seq=str(seq), out=str(out), checkpoint_every=2,
+                      semantic=SemanticParams(features=True, feature_dim=D)), progress=False)
+    cfg = load_config(out)
+    yield out, cfg, sequence_frames(cfg, Sequence(seq))
+    mp.undo()
+
+
+def _same(a, b):
+    x, y = a.memory.to_arrays(), b.memory.to_arrays()
+    assert sorted(x) == sorted(y)
+    for k in x:
+        np.testing.assert_array_equal(x[k], y[k], err_msg=k)
+
+
+def _moved(T, seed):
+    rng = np.random.default_rng(seed)
+    out = T.copy()
+    out[:3, 3] += rng.normal(0, 0.15, 3)
+    return out
+
+
+def test_feature_channel_is_saved_and_exact_under_revise_remove_and_reload(fmapped, tmp_path):
+    out, cfg, frames = fmapped
+    mc = cfg.mapper_config()
+    assert mc.feature_dim == D
+    with np.load(out / "memory.npz") as z:
+        assert "Z" in z["channel_names"].tolist()
+    loaded = Mapper.load(out)  # the delta log and memory.npz of the run
+    direct = Mapper(mc)
+    for i in range(N):
+        direct.integrate(frames(i))
+    _same(loaded, direct)
+    keys, ch = direct.memory.nonzero()
+    Z, S = np.asarray(ch["Z"]), np.asarray(ch["S"]).reshape(-1)
+    assert Z.shape[1] == D and np.any(Z != 0)
+    assert not np.any(Z[S == 0])  # kept only where semantic evidence fell
+    assert np.all(np.abs(Z) <= 127 * S[:, None] // 64)  # s times a mean of int8 values
+    # revise: a wrong pose, then the true one again -> bit for bit the direct memory (no segmenter call)
+    m = Mapper(mc, frame_source=frames.read)
+    for i in range(N):
+        f = frames(i)
+        if i == 1:
+            f.T_world_cam = _moved(f.T_world_cam, 3)
+        m.integrate(f)
+    with pytest.raises(AssertionError):
+        _same(m, direct)
+    assert m.revise(1, frames.read(1).T_world_cam)
+    _same(m, direct)
+    # remove = never added
+    m.remove(2)
+    without = Mapper(mc)
+    for i in (0, 1, 3):
+        without.integrate(frames(i))
+    _same(m, without)
+    # saved and loaded through the delta log: the kept observation holds the int8 features
+    folder = m.save(tmp_path / "r")
+    back = Mapper.load(folder, frame_source=frames.read)
+    _same(back, without)
+    obs = back._rpu.store.get(0).observation
+    assert obs.features.dtype == np.int8 and obs.features.shape[2] == D
+    back.integrate(frames(2))
+    _same(back, direct)
+
+
+def test_a_feature_map_refuses_frames_without_features(fmapped):
+    _, cfg, frames = fmapped
+    m = Mapper(cfg.mapper_config())
+    f = frames(0)
+    f.features = None
+    with pytest.raises(PanovoccError, match="carries none"):
+        m.integrate(f)
+
+
+def test_features_need_a_segmenter_that_gives_them(tmp_path):
+    seq = write_labelled_room(tmp_path / "room", 32, 1)
+    with pytest.raises(PanovoccError, match="--features needs"):
+        run_map(MapConfig(seq=str(seq), out=str(tmp_path / "m"), semantic=SemanticParams(segmenter="none",
+                                                                                        features=True)),
+                progress=False)
+    assert not (tmp_path / "m").exists()
+
+
+def test_projection_is_fixed_orthonormal_and_keeps_cosines():
+    P = F.projection(384, 64)
+    np.testing.assert_array_equal(P, F.projection(384, 64))
+    np.testing.assert_allclose(P.T @ P, np.eye(64), atol=1e-12)
+    assert not np.array_equal(P, F.projection(384, 64, seed=F.FEATURE_SEED + 1))
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((200, 384))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    a, b = x[:100] + x[100:], x[:100]  # pairs with cosine about 0.7
+    cos = np.sum(a * b, 1) / np.linalg.norm(a, axis=1)
+    pa, pb = F.project(a, P), F.project(b, P)
+    err = np.abs(np.sum(pa * pb, 1) - cos)
+    assert err.mean() < 0.1  # the random subspace's distortion, about 1 / sqrt(64)
+    q = F.quantize_features(a.reshape(10, 10, 384), P)
+    assert q.dtype == np.int8 and q.shape == (10, 10, 64)
+    np.testing.assert_allclose(np.linalg.norm(q.astype(float), axis=2), 127, rtol=0.05)
+    with pytest.raises(PanovoccError, match="dimension 383"):
+        F.project(np.ones(383), P)
+
+
+def test_scores_and_evidence_on_hand_made_features():
+    """Voxels whose stored features are known words' embeddings: a query for a word ranks its voxels first,
+    relabelling puts each voxel on its word, and a voxel whose feature matches no word is unclassed."""
+    enc = fake_encoder(32)
+    P = F.projection(32, 8)
+    words = ["bed", "sofa", "floor"]
+    T = F.project(enc(words), P)
+    rng = np.random.default_rng(1)
+    truth = np.repeat(np.arange(3), 5)
+    S = 64 * rng.integers(1, 50, len(truth) + 2)
+    U = np.concatenate([T[truth], np.zeros((1, 8)), F.project(rng.standard_normal(8), np.eye(8))[None]])
+    Z = (S[:, None] // 64) * np.rint(127 * U).astype(np.int64)
+    s = F.feature_scores(Z, F.project(enc(["sofa"])[0], P))
+    assert s[-2] == -1.0  # no feature
+    assert set(np.argsort(-s)[:5]) == set(np.flatnonzero(truth == 1))
+    E, best = F.feature_evidence(Z, S, T, min_similarity=0.9)
+    assert E.shape == (len(S), 4) and E.dtype == np.int64
+    np.testing.assert_array_equal(E.sum(axis=1), S)
+    np.testing.assert_array_equal(np.argmax(E[:15], axis=1), truth)
+    assert E[-2, 3] == S[-2] and E[-1, 3] == S[-1]  # no feature; a feature far from every word
+    assert best[-2] == -1.0 and best[-1] < 0.9
+
+
+def test_simulated_embedding_mode_is_seeded_and_near_the_true_class():
+    from panovocc_cli.semantics.simulated import SimulatedConfig, SimulatedSegmenter
+
+    names = ["unlabeled", "wall", "floor", "bed"]
+    lab = np.zeros((16, 32), np.int64)
+    lab[:6], lab[6:11], lab[11:] = 1, 3, 2
+    enc = fake_encoder(24)
+
+    def seg(noise):
+        s = SimulatedSegmenter(lambda i: (lab, names), SimulatedConfig(noise=noise, seed=3))
+        s._encode = enc
+        return s
+
+    exact = seg(0.0).features(None, frame_id=0)
+    emb = enc(["wall", "floor", "bed"])
+    true = emb[lab.reshape(-1) - 1]
+    np.testing.assert_allclose(np.sum(F.unit_rows(exact.reshape(-1, 24)) * true, 1), 1.0, atol=0.02)
+    a, b = seg(1.0).features(None, frame_id=5), seg(1.0).features(None, frame_id=5)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, seg(1.0).features(None, frame_id=6))
+    cos = np.sum(F.unit_rows(a.reshape(-1, 24)) * true, 1)
+    assert 0.5 < np.median(cos) < 0.999  # noisy but mostly the true class
