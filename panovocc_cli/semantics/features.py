@@ -38,20 +38,17 @@ DEFAULT_FEATURE_MARGIN = 0.1
 
 def projection(source_dim: int, dim: int, seed: int = FEATURE_SEED) -> np.ndarray:
     """The fixed projection ``(source_dim, dim)`` float64 of a map: Gaussian entries from
-    ``default_rng([seed, source_dim, dim])``, columns made orthonormal (QR) when ``dim <= source_dim``, so a
-    vector's projection keeps its length and cosines are kept up to the random subspace's distortion
-    (about ``1 / sqrt(dim)``). The same arguments give the same bytes on every machine."""
+    ``default_rng([seed, source_dim, dim])``, made orthonormal by QR: its columns when ``dim <= source_dim``
+    (cosines are kept up to the random subspace's distortion, about ``1 / sqrt(dim)``), its rows otherwise
+    (an isometry: cosines kept exactly). The same arguments give the same bytes on every machine."""
     F, D = int(source_dim), int(dim)
     if F < 1 or not 1 <= D <= MAX_FEATURE_DIM:
         raise PanovoccError(f"feature projection {F} -> {D}: expected source dimension >= 1 and 1 <= D <= "
                             f"{MAX_FEATURE_DIM}")
     g = np.random.default_rng([int(seed), F, D]).standard_normal((F, D))
-    if D <= F:
-        q, r = np.linalg.qr(g)
-        g = q * np.where(np.diag(r) < 0, -1.0, 1.0)  # sign fixed: the factorisation's choice does not matter
-    else:
-        g /= np.sqrt(F)
-    return g
+    q, r = np.linalg.qr(g if D <= F else g.T)
+    q = q * np.where(np.diag(r) < 0, -1.0, 1.0)  # sign fixed: the factorisation's choice does not matter
+    return q if D <= F else q.T
 
 
 def project(x: np.ndarray, P: np.ndarray) -> np.ndarray:

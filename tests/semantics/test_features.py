@@ -20,7 +20,7 @@ N = 4
 D = 16
 
 
-def fake_encoder(dim=24):
+def fake_encoder(dim=256):
     """A deterministic stand-in text model (no torch): each text's hashed unit vector, so that equal words
     embed equally and different words nearly orthogonally."""
     import zlib
@@ -143,6 +143,8 @@ def test_projection_is_fixed_orthonormal_and_keeps_cosines():
     np.testing.assert_allclose(np.linalg.norm(q.astype(float), axis=2), 127, rtol=0.05)
     with pytest.raises(PanovoccError, match="dimension 383"):
         F.project(np.ones(383), P)
+    up = F.projection(24, 32)  # more dimensions than the source: an isometry
+    np.testing.assert_allclose(up @ up.T, np.eye(24), atol=1e-12)
 
 
 def test_scores_and_evidence_on_hand_made_features():
@@ -178,7 +180,7 @@ def test_simulated_embedding_mode_is_seeded_and_near_the_true_class():
 
     def seg(noise):
         s = SimulatedSegmenter(lambda i: (lab, names), SimulatedConfig(noise=noise, seed=3))
-        s._encode = enc
+        s.text_encoder = lambda: enc
         return s
 
     exact = seg(0.0).features(None, frame_id=0)
@@ -190,3 +192,102 @@ def test_simulated_embedding_mode_is_seeded_and_near_the_true_class():
     assert not np.array_equal(a, seg(1.0).features(None, frame_id=6))
     cos = np.sum(F.unit_rows(a.reshape(-1, 24)) * true, 1)
     assert 0.5 < np.median(cos) < 0.999  # noisy but mostly the true class
+
+
+# --- asking a feature map --------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def qmap(tmp_path_factory):
+    """The furnished room at 128x64, 6 frames, mapped with a one-word vocabulary and --features: the words
+    of the room are known to the map only through its features. The text model is :func:`fake_encoder`."""
+    from panovocc_cli.semantics.simulated import SimulatedSegmenter
+
+    root = tmp_path_factory.mktemp("featq")
+    seq = write_labelled_room(root / "room", 128, 6)
+    mp = pytest.MonkeyPatch()
+    mp.setattr(SimulatedSegmenter, "text_encoder", lambda self: fake_encoder())
+    run_map(MapConfig(seq=str(seq), out=str(root / "m"), checkpoint_every=0,
+                      semantic=SemanticParams(vocab="object", features=True, feature_dim=64)), progress=False)
+    yield root / "m", seq
+    mp.undo()
+
+
+def _in_box(pts, name, slack=0.2):
+    from semantics_helpers import BOXES
+
+    lo, hi = next((np.array(a), np.array(b)) for n, a, b in BOXES if n == name)
+    return np.all((pts >= lo - slack) & (pts <= hi + slack), axis=1)
+
+
+def test_query_by_features_finds_a_word_the_map_was_never_given(qmap, tmp_path):
+    from panovocc_cli.cli.query_cmds import QueryConfig, format_query, run_query
+    from panovocc_cli.io.grid import read_grid
+    from panovocc_cli.mapquery import MapQuery
+
+    out, _ = qmap
+    q = MapQuery(out, encoder=fake_encoder)
+    assert q.by == "features" and q.vocab == ["object"]
+    a = q.answer("bed", top=3)
+    assert a.result["by"] == "features" and a.result["voxels"] > 20
+    pts = q.export.centres(np.flatnonzero(a.mask))
+    assert _in_box(pts, "bed").mean() > 0.8
+    box = a.result["clusters"][0]
+    assert _in_box(np.array([box["centroid_m"]]), "bed")[0]
+    # the same question again: the same answer (the map and the encoder kept)
+    b = q.answer("bed", top=3)
+    np.testing.assert_array_equal(a.scores, b.scores)
+    assert "by features" in format_query(a.result)
+    # --out: a grid of the matches, and a heat picture
+    [res] = run_query(QueryConfig(out, ["sofa"], out=tmp_path / "sofa.npz"), encode=fake_encoder())
+    g = read_grid(tmp_path / "sofa.npz")
+    assert g.class_names == ["empty", "sofa"] and int((g.labels == 1).sum()) == res["voxels"] > 0
+    run_query(QueryConfig(out, ["sofa"], out=tmp_path / "heat.png"), encode=fake_encoder())
+    assert (tmp_path / "heat.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_relabel_by_features_to_words_the_map_never_saw_and_eval(qmap, tmp_path, capsys):
+    from cli_helpers import run_cli
+    from semantics_helpers import CLASS_NAMES
+
+    from panovocc_cli.cli.query_cmds import RelabelConfig, run_relabel
+    from panovocc_cli.io.grid import read_grid
+
+    from panovocc_cli.classes import canonical_name
+
+    out, seq = qmap
+    names = [canonical_name(n) for n in CLASS_NAMES[1:]]
+    res = run_relabel(RelabelConfig(out, tmp_path / "all.npz", vocab=",".join(names)), encode=fake_encoder())
+    assert res["by_features"] and res["vocab"] == names
+    g = read_grid(tmp_path / "all.npz")
+    assert g.class_names == ["empty"] + names
+    assert res["classed"]["wall"] > res["classed"]["bed"] > 20 and res["unclassed"] < 0.1 * res["occupied"]
+    # a vocabulary that covers few surfaces: the rest is occupied-unclassed (254), counted
+    few = run_relabel(RelabelConfig(out, tmp_path / "few.npz", vocab="bed,zebra"), encode=fake_encoder())
+    assert few["classed"]["bed"] > 20 and few["classed"]["zebra"] < 0.1 * few["classed"]["bed"]
+    assert few["unclassed"] > 0.6 * few["occupied"]
+    labels = read_grid(tmp_path / "few.npz").labels
+    assert int((labels == 254).sum()) == few["unclassed"]
+    # the threshold is the option: 1.0 leaves nearly nothing classed
+    none = run_relabel(RelabelConfig(out, tmp_path / "none.npz", vocab="bed", min_feature_similarity=1.0),
+                       encode=fake_encoder())
+    assert none["classed"]["bed"] < 0.05 * none["occupied"]
+    # merges of stored classes mean nothing to the feature route
+    with pytest.raises(PanovoccError, match="merges stored classes"):
+        run_relabel(RelabelConfig(out, tmp_path / "m.npz", vocab="seat=object"), encode=fake_encoder())
+    # panovocc eval scores the relabelled grid
+    from panovocc_cli.io.grid import write_grid  # noqa: F401  (the grid module's reader wrote above)
+
+    code, text, err = run_cli(capsys, ["eval", tmp_path / "all.npz", tmp_path / "all.npz", "--classes", "all"])
+    assert code == 0, err and "mIoU" in text
+
+
+def test_feature_routes_on_a_map_without_features_name_the_option(tmp_path, capsys):
+    from cli_helpers import run_cli
+
+    seq = write_labelled_room(tmp_path / "room", 64, 2)
+    run_map(MapConfig(seq=str(seq), out=str(tmp_path / "m"), checkpoint_every=0), progress=False)
+    for argv in (["query", tmp_path / "m", "bed", "--by", "features"],
+                 ["relabel", tmp_path / "m", tmp_path / "n.npz", "--vocab", "bed", "--by", "features"]):
+        code, out, err = run_cli(capsys, argv)
+        assert code == 2 and "--features" in err and len(err.strip().splitlines()) == 1, (argv, err)
+    assert not (tmp_path / "n.npz").exists()
