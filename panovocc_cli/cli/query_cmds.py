@@ -212,7 +212,7 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     ``sources`` per new word, ``classed`` voxels per new word, ``unclassed`` occupied voxels without one.
 
     By features (``cfg.by``; a map made with ``--features``): the evidence is written from each voxel's fused
-    feature instead (:func:`semantics.features.feature_evidence`: a softmax over its cosines to the words,
+    feature instead (:func:`semantics.features.feature_distribution`: a softmax over its cosines to the words,
     the weight of a voxel whose best cosine is below ``min_feature_similarity`` on the extra column), so any
     words are reached; then the same export. ``by_features`` in the summary says which route was taken.
     """
@@ -269,9 +269,10 @@ def _relabel_by_features(cfg: RelabelConfig, mapper, new, encode):
 
     import numpy as np
 
+    from ..mapping.contributors import distribution_evidence
     from ..mapping.export import export_memory
     from ..mapquery import feature_text_encoder, needs_features
-    from ..semantics.features import feature_evidence, project, projection
+    from ..semantics.features import feature_distribution, project, projection
     from ..semantics.query import _words
 
     if not mapper.config.feature_dim:
@@ -287,8 +288,9 @@ def _relabel_by_features(cfg: RelabelConfig, mapper, new, encode):
     T = project(e, projection(e.shape[1], mapper.config.feature_dim))
     keys, ch = mapper.memory.nonzero()
     ch = dict(ch)
-    ch["E"], _ = feature_evidence(ch["Z"], ch["S"], T, temperature=cfg.feature_temperature,
-                                  min_similarity=cfg.min_feature_similarity)
+    p, _ = feature_distribution(ch["Z"], T, temperature=cfg.feature_temperature,
+                                min_similarity=cfg.min_feature_similarity)
+    ch["E"] = distribution_evidence(p, ch["S"])
     mcfg = dataclasses.replace(mapper.config, vocab=words + [UNMATCHED])
     ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, mcfg.vocab, mcfg,
                        origin_index=mcfg.origin_index())

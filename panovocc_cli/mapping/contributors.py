@@ -81,6 +81,13 @@ def distribution_steps(D: np.ndarray, steps: int = D_STEPS) -> np.ndarray:
     return f.astype(np.int64) + (rank < rest[:, None])
 
 
+def distribution_evidence(D: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Class evidence in ``E``'s form from distributions ``D`` (n, C) and stored weights ``S`` (n,) or (n, 1)
+    (``64 s``): ``s * distribution_steps(D)``, rows summing to ``S`` (a relabelled map's evidence, e.g. from
+    its features: :func:`panovocc_cli.semantics.features.feature_distribution`). (n, C) int64."""
+    return (np.asarray(S, np.int64).reshape(-1) // D_STEPS)[:, None] * distribution_steps(D)
+
+
 def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
     """Float sums of :func:`semantics.evidence.frame_semantic_delta` -> the integer :class:`Delta` of the
     module docstring's table.

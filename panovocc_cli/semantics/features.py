@@ -12,9 +12,9 @@ weighted mean feature in 1/(64 * 127) steps.
 
 Asking such a map: a text is embedded by the encoder that matches the map's features, projected by the
 same matrix (:func:`project`) and compared by cosine with each voxel's ``Z`` (:func:`feature_scores`).
-Relabelling to any vocabulary (:func:`feature_evidence`): each voxel's cosines to the words give a
+Relabelling to any vocabulary (:func:`feature_distribution`): each voxel's cosines to the words give a
 softmax distribution, written back in the form of the class evidence ``E`` (integer steps times the voxel's
-weight), so the map's own export (GSC, nearest-evidence transfer) labels the voxels; a voxel whose best
+weight: :func:`panovocc_cli.mapping.contributors.distribution_evidence`), so the map's own export (GSC, nearest-evidence transfer) labels the voxels; a voxel whose best
 cosine is below ``min_similarity`` puts its weight on one more column, exported as occupied-unclassed (254).
 """
 
@@ -83,25 +83,22 @@ def feature_scores(Z: np.ndarray, t: np.ndarray) -> np.ndarray:
     return s
 
 
-def feature_evidence(Z: np.ndarray, S: np.ndarray, T: np.ndarray, *, temperature: float = DEFAULT_FEATURE_TEMPERATURE,
-                     min_similarity: float = DEFAULT_FEATURE_MIN_SIMILARITY) -> tuple[np.ndarray, np.ndarray]:
-    """Class evidence over a new vocabulary from stored features.
+def feature_distribution(Z: np.ndarray, T: np.ndarray, *, temperature: float = DEFAULT_FEATURE_TEMPERATURE,
+                         min_similarity: float = DEFAULT_FEATURE_MIN_SIMILARITY) -> tuple[np.ndarray, np.ndarray]:
+    """Each voxel's distribution over a new vocabulary from its stored feature.
 
     Parameters
     ----------
-    Z : (n, D) stored features; S : (n,) or (n, 1) the stored weight ``S`` (64 times the integer weight)
-    T : (C, D) the words' projected unit text embeddings
+    Z : (n, D) stored features (any common scale); T : (C, D) the words' projected unit text embeddings
     temperature : softmax temperature over the cosines; min_similarity : best cosine a voxel needs to take a word
 
     Returns
     -------
-    E : (n, C + 1) int64, ``(S / 64) * d`` with ``d`` the softmax distribution over the words in integer steps
-        summing to 64 (:func:`~panovocc_cli.mapping.contributors.distribution_steps`), or all 64 steps on the
-        last column when the best cosine is below ``min_similarity`` (or the voxel has no feature); row sums = S
+    p : (n, C + 1) float64, the softmax over the words' cosines, or all mass on the last column when the best
+        cosine is below ``min_similarity`` (or the voxel has no feature); rows sum to 1 (the class evidence of
+        a relabelled map: :func:`panovocc_cli.mapping.contributors.distribution_evidence`)
     best : (n,) float64, each voxel's best cosine (-1: no feature)
     """
-    from ..mapping.contributors import D_STEPS, distribution_steps
-
     U = unit_rows(Z)
     cos = U @ np.asarray(T, np.float64).T
     has = U.any(axis=1)
@@ -110,6 +107,4 @@ def feature_evidence(Z: np.ndarray, S: np.ndarray, T: np.ndarray, *, temperature
     p = np.exp(z)
     p /= p.sum(axis=1, keepdims=True)
     off = best < float(min_similarity)
-    p = np.concatenate([np.where(off[:, None], 0.0, p), off[:, None].astype(np.float64)], axis=1)
-    w = np.asarray(S, np.int64).reshape(-1) // D_STEPS
-    return w[:, None] * distribution_steps(p), best
+    return np.concatenate([np.where(off[:, None], 0.0, p), off[:, None].astype(np.float64)], axis=1), best

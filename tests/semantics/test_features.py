@@ -162,7 +162,10 @@ def test_scores_and_evidence_on_hand_made_features():
     s = F.feature_scores(Z, F.project(enc(["sofa"])[0], P))
     assert s[-2] == -1.0  # no feature
     assert set(np.argsort(-s)[:5]) == set(np.flatnonzero(truth == 1))
-    E, best = F.feature_evidence(Z, S, T, min_similarity=0.9)
+    from panovocc_cli.mapping.contributors import distribution_evidence
+
+    p, best = F.feature_distribution(Z, T, min_similarity=0.9)
+    E = distribution_evidence(p, S)
     assert E.shape == (len(S), 4) and E.dtype == np.int64
     np.testing.assert_array_equal(E.sum(axis=1), S)
     np.testing.assert_array_equal(np.argmax(E[:15], axis=1), truth)
