@@ -65,8 +65,15 @@ def project(x: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def quantize_features(x: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Per-pixel features ``x (h, w, F)`` -> the observation's ``(h, w, D)`` int8: unit projections in
-    1/127 steps, ``rint(127 y)``."""
-    return np.rint(FEATURE_STEPS * project(x, P)).astype(np.int8)
+    1/127 steps, ``rint(127 y)``. Computed in float32 as one (pixels, F) x (F, D) product (a frame's
+    features are float32; float64 copies of them cost more than the product)."""
+    x = np.asarray(x)
+    if x.shape[-1] != P.shape[0]:
+        return np.rint(FEATURE_STEPS * project(x, P)).astype(np.int8)  # project's one-line refusal
+    y = np.ascontiguousarray(x, np.float32).reshape(-1, P.shape[0]) @ P.astype(np.float32)
+    n = np.sqrt(np.einsum("ij,ij->i", y, y))[:, None]
+    y = np.divide(np.float32(FEATURE_STEPS) * y, n, out=np.zeros_like(y), where=n > 0)
+    return np.rint(y).astype(np.int8).reshape(x.shape[:-1] + (P.shape[1],))
 
 
 def unit_rows(Z: np.ndarray) -> np.ndarray:
