@@ -294,3 +294,20 @@ def test_feature_routes_on_a_map_without_features_name_the_option(tmp_path, caps
         code, out, err = run_cli(capsys, argv)
         assert code == 2 and "--features" in err and len(err.strip().splitlines()) == 1, (argv, err)
     assert not (tmp_path / "n.npz").exists()
+
+
+def test_resume_of_a_feature_map_gives_the_bytes_of_an_uninterrupted_run(fmapped, tmp_path):
+    """``map`` killed after frame 3 (checkpoint at 2) and resumed: memory.npz and the grid equal the run that
+    was never interrupted (the feature channel included)."""
+    from panovocc_cli.semantics.simulated import SimulatedSegmenter
+
+    out, cfg, _ = fmapped
+    part = tmp_path / "part"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(SimulatedSegmenter, "text_encoder", lambda self: fake_encoder())
+        st = run_map(MapConfig(seq=cfg.seq, out=str(part), checkpoint_every=2,
+                               semantic=SemanticParams(features=True, feature_dim=D)), progress=False, stop_after=3)
+        assert st["stopped_at"] == 3
+        run_map(resume_out=part, progress=False)
+    for name in ("memory.npz", "prediction.npz"):
+        assert (part / name).read_bytes() == (out / name).read_bytes(), name
