@@ -106,7 +106,8 @@ class MapQuery:
     voxel_size : float, metres; open_seconds : float, seconds spent opening and exporting the map
 
     Memory: the export (the occupied voxels' keys, labels and channels, as ``panovocc query`` held them) and,
-    from the first question on, their class distribution ``(n, C) float64`` (8 C bytes per occupied voxel).
+    from the first question on, their class distribution ``(n, C) float64`` (8 C bytes per occupied voxel), or
+    by features their unit features ``(n, D) float64`` (8 D bytes per occupied voxel).
 
     Raises
     ------
@@ -137,6 +138,7 @@ class MapQuery:
         self._encode: TextEncoder | None = None
         self._p: np.ndarray | None = None  # (n, C) float64 class distribution of the occupied voxels, once
         self._u: np.ndarray | None = None  # (n, D) float64 unit features of the occupied voxels, once
+        self._P: np.ndarray | None = None  # (F, D) the map's projection, once
         self.open_seconds = time.perf_counter() - t0
 
     @property
@@ -187,10 +189,10 @@ class MapQuery:
 
         ex, vocab = self.export, self.vocab
         e = np.asarray(self.encode([text]), np.float64)[0]
-        t = project(e, projection(len(e), self.feature_dim))
-        if self._u is None:
+        if self._u is None:  # once: the map's projection and its voxels' unit features
+            self._P = projection(len(e), self.feature_dim)
             self._u = unit_rows(ex.channels["Z"])
-        scores = feature_scores(self._u, t)
+        scores = feature_scores(self._u, project(e, self._P), unit=True)
         best_score = float(scores.max()) if len(scores) else -1.0
         thr = max(float(min_similarity), best_score - float(margin))
         mask = scores >= thr

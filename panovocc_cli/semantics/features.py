@@ -81,10 +81,11 @@ def unit_rows(Z: np.ndarray) -> np.ndarray:
     return project(np.asarray(Z, np.float64), np.eye(np.shape(Z)[1]))
 
 
-def feature_scores(Z: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Cosine ``(n,)`` of each voxel's fused feature (``Z (n, D)``) with the projected text ``t (D,)``;
-    voxels without a feature (a zero row) score -1."""
-    U = unit_rows(Z)
+def feature_scores(Z: np.ndarray, t: np.ndarray, *, unit: bool = False) -> np.ndarray:
+    """Cosine ``(n,)`` of each voxel's fused feature (``Z (n, D)``; ``unit``: already :func:`unit_rows`, kept
+    by a caller that asks many times) with the projected text ``t (D,)``; voxels without a feature (a zero
+    row) score -1."""
+    U = np.asarray(Z, np.float64) if unit else unit_rows(Z)
     s = U @ np.asarray(t, np.float64).reshape(-1)
     s[~U.any(axis=1)] = -1.0
     return s
