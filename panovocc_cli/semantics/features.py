@@ -30,7 +30,7 @@ FEATURE_STEPS = 127  # a pixel's unit feature in 1/127 steps (int8)
 MAX_FEATURE_DIM = 1024
 #: relabel by features: softmax temperature over the words' cosines, and the cosine below which a voxel
 #: takes no word (occupied-unclassed, 254). Chosen on homes of seeds 100-101 (docs/semantics.md).
-DEFAULT_FEATURE_TEMPERATURE = 0.05
+DEFAULT_FEATURE_TEMPERATURE = 0.1
 DEFAULT_FEATURE_MIN_SIMILARITY = 0.3
 #: query by features: voxels within this cosine of the best voxel's and above ``min_similarity`` match.
 DEFAULT_FEATURE_MARGIN = 0.1
