@@ -32,6 +32,8 @@ class Frame:
         at the mapper's semantic stride, :func:`logits_stride`)
     index : int or None, the frame's identity (its position in the sequence); the mapper uses it as the
         frame id when given
+    features : (H, W, F) or (ceil(H/s), ceil(W/s), F) float32 or None, per-pixel embeddings of a segmenter
+        that gives them (a map with ``--features`` fuses them; :mod:`panovocc_cli.semantics.features`)
     """
 
     rgb: np.ndarray
@@ -40,6 +42,7 @@ class Frame:
     camera: ErpCamera
     logits: np.ndarray | None = None
     index: int | None = None
+    features: np.ndarray | None = None
 
     def __post_init__(self):
         self.T_world_cam = np.asarray(self.T_world_cam, np.float64)

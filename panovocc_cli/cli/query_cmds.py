@@ -15,12 +15,14 @@ import typer
 
 from ..config import option, validate_config
 from ..errors import PanovoccError, printable
+from ..semantics.features import DEFAULT_FEATURE_MIN_SIMILARITY, DEFAULT_FEATURE_TEMPERATURE
 from ..semantics.query import (DEFAULT_MARGIN, DEFAULT_MIN_SIMILARITY, DEFAULT_RELABEL_SIMILARITY,
                                DEFAULT_TEMPERATURE)
 from ._app import app
 from .options import OptionValues, config_command
 
-QUERY_OUTPUTS = (".json", ".ply", ".png")
+QUERY_OUTPUTS = (".json", ".ply", ".png", ".npz")
+BY = ("auto", "features", "classes")
 #: relabel: the column of the evidence of the stored classes that no new word takes (exported as 254).
 UNMATCHED = "(no new word)"
 #: Colours of query pictures and point clouds: voxels that do not match, and the score ramp's ends.
@@ -39,7 +41,12 @@ class QueryConfig:
                               "once.")
     top: int = option(5, min=1, max=1000, help="Number of clusters listed (best first).")
     out: Path | None = option(None, help="Also write the answer (one TEXT only): .json (classes, clusters, best voxels), .ply "
-                              "(occupied voxels, matches coloured by score) or .png (top view with boxes).")
+                              "(occupied voxels, matches coloured by score), .png (top view with boxes, matches "
+                              "coloured by score) or .npz (a CONVENTIONS grid: matching voxels 1, other occupied "
+                              "254, free 0, unobserved 255).")
+    by: str = option("auto", choices=BY, help="How the text reaches the voxels: features (cosine to each voxel's "
+                     "fused feature; maps made with --features), classes (matched to the map's vocabulary), auto "
+                     "(features when the map has them).")
     min_voxels: int = option(3, min=1, help="Smallest cluster reported, in voxels.")
     min_similarity: float = option(DEFAULT_MIN_SIMILARITY, min=-1.0, max=1.0, help="Text cosine a class needs "
                                    "to match the query.")
@@ -61,6 +68,15 @@ class RelabelConfig:
     min_similarity: float = option(DEFAULT_RELABEL_SIMILARITY, min=-1.0, max=1.0, help="Text cosine a stored class "
                                    "needs to its most similar new word to go to it; voxels won by classes that go "
                                    "to no word get no class (254).")
+    by: str = option("auto", choices=BY, help="features: label each occupied voxel by its fused feature's cosine to "
+                     "the words (any words; maps made with --features); classes: through the stored class evidence; "
+                     "auto: features when the map has them.")
+    min_feature_similarity: float = option(DEFAULT_FEATURE_MIN_SIMILARITY, min=-1.0, max=1.0,
+                                           help="By features: the cosine a voxel's best word needs; below it the "
+                                                "voxel is occupied without a class (254).")
+    feature_temperature: float = option(DEFAULT_FEATURE_TEMPERATURE, min=1e-3, max=10.0,
+                                        help="By features: softmax temperature (cosine units) of a voxel's "
+                                             "distribution over the words.")
     overwrite: bool = option(False, help="Replace an existing NEW.npz (never an input).")
 
 
@@ -101,7 +117,7 @@ def run_query(cfg: QueryConfig, encode=None) -> list[dict]:
         if Path(cfg.out).suffix.lower() not in QUERY_OUTPUTS:
             raise PanovoccError(f"--out must end in {', '.join(QUERY_OUTPUTS)}", cfg.out)
         check_file_output(cfg.out, "query", cfg.overwrite, inputs=[cfg.map_dir])
-    q = MapQuery(cfg.map_dir, encoder=None if encode is None else (lambda: encode))
+    q = MapQuery(cfg.map_dir, encoder=None if encode is None else (lambda: encode), by=cfg.by)
     answers = [q.answer(t, cfg.top, min_voxels=cfg.min_voxels, min_similarity=cfg.min_similarity,
                         margin=cfg.margin, temperature=cfg.temperature) for t in texts]
     if cfg.out is not None:
@@ -135,6 +151,17 @@ def _write_query_output(cfg: QueryConfig, result: dict, ex, h: float, scores, ma
             from ..io.ply import write_ply_points
 
             write_ply_points(out, pts, cols)
+        elif suffix == ".npz":
+            from ..grid import OCCUPIED_UNKNOWN_CLASS, Grid
+            from ..io.grid import write_grid
+
+            g = ex.grid
+            labels = g.labels.copy()
+            labels[(labels >= 1) & (labels <= 253)] = OCCUPIED_UNKNOWN_CLASS
+            idx = np.rint((pts[mask] - np.asarray(g.origin, np.float64)) / g.voxel_size).astype(np.int64)  # origin:
+            #                                                                         the first voxel's centre
+            labels[tuple(idx.T)] = 1
+            write_grid(out, Grid(labels, g.origin, g.voxel_size, ["empty", result["query"]]))
         else:
             from ..io.figures import write_png
 
@@ -183,6 +210,11 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     map's own export (occupancy rule, GSC, nearest-evidence transfer) labels the occupied voxels with the
     new words; a voxel that column wins is occupied without a class (254). Returns a summary: ``vocab``,
     ``sources`` per new word, ``classed`` voxels per new word, ``unclassed`` occupied voxels without one.
+
+    By features (``cfg.by``; a map made with ``--features``): the evidence is written from each voxel's fused
+    feature instead (:func:`semantics.features.feature_distribution`: a softmax over its cosines to the words,
+    the weight of a voxel whose best cosine is below ``min_feature_similarity`` on the extra column), so any
+    words are reached; then the same export. ``by_features`` in the summary says which route was taken.
     """
     import dataclasses
 
@@ -208,22 +240,72 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
         if not stored:
             raise PanovoccError("the map has no semantic evidence (mapped with --segmenter none)",
                                 Path(cfg.map_dir) / "config.json")
-        needs_text = any(not olds and w not in {canonical_name(s) for s in stored} for w, olds in new)
-        if needs_text and encode is None:
-            encode = minilm_encoder()
-        M, sources = relabel_matrix(stored, new, encode, cfg.min_similarity)
-        # the stored classes no new word takes keep their evidence in one more column, so the voxels that
-        # evidence wins come out without a class (254), not with the best of the new words
-        M = np.concatenate([M, (~M.any(axis=1))[:, None].astype(np.int64)], axis=1)
-        keys, ch = mapper.memory.nonzero()
-        ch = dict(ch)
-        ch["E"] = np.asarray(ch["E"], np.int64) @ M
+        by_features = cfg.by == "features" or (cfg.by == "auto" and bool(mapper.config.feature_dim))
         words = [w for w, _ in new]
-        mcfg = dataclasses.replace(mapper.config, vocab=words + [UNMATCHED])
-        ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, mcfg.vocab, mcfg,
-                           origin_index=mcfg.origin_index())
+        if by_features:
+            ex, sources = _relabel_by_features(cfg, mapper, new, encode)
+        else:
+            needs_text = any(not olds and w not in {canonical_name(s) for s in stored} for w, olds in new)
+            if needs_text and encode is None:
+                encode = minilm_encoder()
+            M, sources = relabel_matrix(stored, new, encode, cfg.min_similarity)
+            # the stored classes no new word takes keep their evidence in one more column, so the voxels that
+            # evidence wins come out without a class (254), not with the best of the new words
+            M = np.concatenate([M, (~M.any(axis=1))[:, None].astype(np.int64)], axis=1)
+            keys, ch = mapper.memory.nonzero()
+            ch = dict(ch)
+            ch["E"] = np.asarray(ch["E"], np.int64) @ M
+            mcfg = dataclasses.replace(mapper.config, vocab=words + [UNMATCHED])
+            ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, mcfg.vocab, mcfg,
+                               origin_index=mcfg.origin_index())
     finally:
         mapper.close()
+    return _write_relabelled(cfg, ex, words, sources, config_path, by_features)
+
+
+def _relabel_by_features(cfg: RelabelConfig, mapper, new, encode):
+    """run_relabel's feature route: (the export under the new words + the unmatched column, sources)."""
+    import dataclasses
+
+    import numpy as np
+
+    from ..mapping.contributors import distribution_evidence
+    from ..mapping.export import export_memory
+    from ..mapquery import feature_text_encoder, needs_features
+    from ..semantics.features import feature_distribution, project, projection
+    from ..semantics.query import _words
+
+    if not mapper.config.feature_dim:
+        raise needs_features(cfg.map_dir, "relabel --by features")
+    merged = [w for w, olds in new if olds]
+    if merged:
+        raise PanovoccError(f"{merged[0]!r}: NAME=old1+old2 merges stored classes, which relabelling by features does "
+                            "not use; give the words alone (or use --by classes)")
+    if encode is None:
+        encode = feature_text_encoder(cfg.map_dir)
+    words = [w for w, _ in new]
+    e = np.asarray(encode([_words(w) for w in words]), np.float64)
+    T = project(e, projection(e.shape[1], mapper.config.feature_dim))
+    keys, ch = mapper.memory.nonzero()
+    ch = dict(ch)
+    p, _ = feature_distribution(ch["Z"], T, temperature=cfg.feature_temperature,
+                                min_similarity=cfg.min_feature_similarity)
+    ch["E"] = distribution_evidence(p, ch["S"])
+    mcfg = dataclasses.replace(mapper.config, vocab=words + [UNMATCHED])
+    ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, mcfg.vocab, mcfg,
+                       origin_index=mcfg.origin_index())
+    return ex, {w: [("features", 1.0)] for w in words}
+
+
+def _write_relabelled(cfg: RelabelConfig, ex, words, sources, config_path, by_features: bool) -> dict:
+    """Write run_relabel's grid (the unmatched column's voxels as 254) and return its summary."""
+    import numpy as np
+
+    from ..grid import OCCUPIED_UNKNOWN_CLASS, Grid
+    from ..io.atomic import output_file
+    from ..io.grid import write_grid
+    from ..io.runconfig import write_run_config
+
     labels = ex.grid.labels.copy()
     labels[labels == len(words) + 1] = OCCUPIED_UNKNOWN_CLASS
     grid = Grid(labels, ex.grid.origin, ex.grid.voxel_size, list(ex.grid.class_names)[:-1])
@@ -234,18 +316,24 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     counts = np.bincount(lab[lab >= 0], minlength=len(words) + 1)
     return {"vocab": words, "sources": {w: [[s, c] for s, c in v] for w, v in sources.items()},
             "classed": {w: int(n) for w, n in zip(words, counts)}, "unclassed": int(len(lab) - counts[:-1].sum()),
-            "occupied": int(len(ex.occupied_keys))}
+            "occupied": int(len(ex.occupied_keys)), "by_features": by_features}
 
 
 def format_query(res: dict) -> str:
     """The query's one-screen summary."""
     m = res["match"]
     lines = [f"query: \"{res['query']}\" on {res['map']} (text model {res['text_model']})"]
-    sims = sorted(m["similarity"].items(), key=lambda t: -t[1])
-    if m["matched"]:
+    if res.get("by") == "features":
+        lines.append(f"by features: best voxel cosine {m['best_cosine']:.2f}, matching from {m['threshold']:.2f} "
+                     f"({m['voxels_with_features']} voxels with features)")
+        if not res["voxels"]:
+            lines.append("no voxel matches (lower --min-similarity to see weaker matches)")
+            return "\n".join(lines)
+    elif m["matched"]:
         lines.append("matched classes: " + ", ".join(f"{x['class']} (cosine {x['similarity']:.2f}, weight "
                                                       f"{x['weight']:.2f})" for x in m["matched"]))
     else:
+        sims = sorted(m["similarity"].items(), key=lambda t: -t[1])
         lines.append("no class of the map's vocabulary matches (best: " + ", ".join(
             f"{k} {v:.2f}" for k, v in sims[:3]) + "); try one of: " + ", ".join(res["vocabulary"]))
         return "\n".join(lines)

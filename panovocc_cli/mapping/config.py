@@ -62,6 +62,8 @@ class SemanticParams:
     use_gsc : False = the ``--no-gsc`` ablation (raw argmax + the same nearest-evidence transfer)
     ply_color : colours of map.ply: ``class`` (class colours, grey for 254), ``rgb`` (mean pixel colour),
         ``height``
+    features, feature_dim : keep the segmenter's per-pixel embeddings fused per voxel (channel ``Z``, D =
+        ``feature_dim`` after the map's fixed projection: :mod:`panovocc_cli.semantics.features`)
     """
 
     segmenter: str = option(SEGMENTER_AUTO, show_default=False,
@@ -78,6 +80,11 @@ class SemanticParams:
     use_gsc: bool = option(True, flag="--no-gsc", negate=True, help="Ablation: raw argmax of the fused evidence, no GSC.")
     ply_color: str = option("class", choices=PLY_COLORS, help="map.ply colours: class (class colours, grey = no class) "
                                                               "| rgb (mean pixel colour) | height.")
+    features: bool = option(False, help="Also keep language-aligned features per voxel (the segmenter's "
+                                        "embeddings, projected to --feature-dim), so that query and relabel reach "
+                                        "any words after mapping (docs/semantics.md, \"Feature memory\").")
+    feature_dim: int = option(64, min=1, max=1024, help="Dimension D of the feature memory (4 D bytes per voxel "
+                                                        "with semantic evidence).")
     gsc: GSCParams = field(default_factory=mapper_gsc_params)
     weights: EvidenceWeights = field(default_factory=EvidenceWeights)
 
@@ -289,6 +296,7 @@ class MapperConfig:
     origin : (3,) float metres, world, on the lattice (a whole number of voxels), or None: the map's local
         origin, which its voxel keys are relative to (``geometry.lattice.local_origin``); None = the
         voxel of the first integrated frame's position
+    feature_dim : D of the feature channel ``Z`` (0: none); frames then carry per-pixel ``features``
     """
 
     geometry: GeometryParams = field(default_factory=GeometryParams)
@@ -298,6 +306,7 @@ class MapperConfig:
     gsc: GSCParams = field(default_factory=mapper_gsc_params)
     weights: EvidenceWeights = field(default_factory=EvidenceWeights)
     origin: list | None = None
+    feature_dim: int = 0
 
     @classmethod
     def of(cls, geometry: GeometryParams, occupancy: OccupancyParams, semantic: SemanticParams,
@@ -305,7 +314,8 @@ class MapperConfig:
         """The mapper's config of a map's sections (the vocabulary is empty for ``--segmenter none``)."""
         return cls(geometry=geometry, occupancy=occupancy,
                    vocab=list(semantic.vocab) if semantic.enabled else [], use_gsc=semantic.use_gsc,
-                   gsc=semantic.gsc, weights=semantic.weights, origin=None if origin is None else list(origin))
+                   gsc=semantic.gsc, weights=semantic.weights, origin=None if origin is None else list(origin),
+                   feature_dim=int(semantic.feature_dim) if semantic.enabled and semantic.features else 0)
 
     def check(self) -> "MapperConfig":
         """Validate the parameter ranges; raise :class:`PanovoccError` naming the option."""
@@ -342,7 +352,8 @@ class MapperConfig:
         """The map folder's ``config.json`` sections of the mapper (the map command adds its run fields)."""
         return {"geometry": dataclasses.asdict(self.geometry), "occupancy": dataclasses.asdict(self.occupancy),
                 "semantic": {"vocab": list(self.vocab), "use_gsc": self.use_gsc,
-                             "gsc": dataclasses.asdict(self.gsc), "weights": dataclasses.asdict(self.weights)},
+                             "gsc": dataclasses.asdict(self.gsc), "weights": dataclasses.asdict(self.weights),
+                             "features": bool(self.feature_dim), "feature_dim": int(self.feature_dim or 64)},
                 "origin": None if self.origin is None else list(self.origin), "format_version": FORMAT_VERSION}
 
     @classmethod

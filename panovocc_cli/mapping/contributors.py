@@ -24,6 +24,8 @@ name            width  per-frame delta
 ``normal_sum``  3      ``k round(127 n_f / k)``: the mean normal in 1/127 steps, times the count
 ``rgb_sum``     3      ``k round(c_f / k)``: the mean colour in grey levels, times the count
 ``count``       1      ``k``, pixels (measurements)
+``Z``           D      only with ``--features``: ``s z`` with ``z`` = the eta-weighted mean of the pixels'
+                       quantised features (int8, :mod:`panovocc_cli.semantics.features`), rounded
 ==============  =====  ============================================================================
 
 Each channel is a product of small per-voxel factors, which the delta log stores instead of the products
@@ -51,16 +53,17 @@ S_STEPS = 256  # a frame's weight S_f in a voxel, in steps of 1 / S_STEPS
 D_STEPS = 64  # its class distribution, in steps of 1 / D_STEPS (summing to D_STEPS)
 NORMAL_STEPS = 127  # the mean normal's components, in steps of 1 / NORMAL_STEPS
 S_SCALE = S_STEPS * D_STEPS  # stored S (and E) per unit of eta
-DELTA_FACTORS = {"E": ("S", D_STEPS), "normal_sum": ("count", 1), "rgb_sum": ("count", 1)}
+DELTA_FACTORS = {"E": ("S", D_STEPS), "normal_sum": ("count", 1), "rgb_sum": ("count", 1), "Z": ("S", D_STEPS)}
 """How each semantic channel of a frame's delta factors (``channel = factor * m / denominator``, m an integer
 array): what the delta log stores instead of the product (:func:`panovocc_cli.io.mapstore.encode_delta`)."""
 
 
-def semantic_channels(n_classes: int) -> tuple[ChannelSpec, ...]:
-    """Memory channels of the semantic contributor for a vocabulary of ``n_classes`` words (all exact
-    integers: the module docstring)."""
+def semantic_channels(n_classes: int, feature_dim: int = 0) -> tuple[ChannelSpec, ...]:
+    """Memory channels of the semantic contributor for a vocabulary of ``n_classes`` words, and the feature
+    channel ``Z`` when ``feature_dim`` > 0 (all exact integers: the module docstring)."""
     return (ChannelSpec("E", n_classes, "int"), ChannelSpec("S", 1, "int"), ChannelSpec("rgb_sum", 3, "int"),
-            ChannelSpec("normal_sum", 3, "int"), ChannelSpec("count", 1, "int"))
+            ChannelSpec("normal_sum", 3, "int"), ChannelSpec("count", 1, "int")) \
+        + ((ChannelSpec("Z", int(feature_dim), "int"),) if feature_dim else ())
 
 
 def distribution_steps(D: np.ndarray, steps: int = D_STEPS) -> np.ndarray:
@@ -78,12 +81,20 @@ def distribution_steps(D: np.ndarray, steps: int = D_STEPS) -> np.ndarray:
     return f.astype(np.int64) + (rank < rest[:, None])
 
 
+def distribution_evidence(D: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Class evidence in ``E``'s form from distributions ``D`` (n, C) and stored weights ``S`` (n,) or (n, 1)
+    (``64 s``): ``s * distribution_steps(D)``, rows summing to ``S`` (a relabelled map's evidence, e.g. from
+    its features: :func:`panovocc_cli.semantics.features.feature_distribution`). (n, C) int64."""
+    return (np.asarray(S, np.int64).reshape(-1) // D_STEPS)[:, None] * distribution_steps(D)
+
+
 def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
     """Float sums of :func:`semantics.evidence.frame_semantic_delta` -> the integer :class:`Delta` of the
     module docstring's table.
 
     keys : (n,) int64 sorted unique; channels : E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3)
-    float64, count (n,) int64 (> 0)
+    float64, count (n,) int64 (> 0); optionally Z (n, D) float64, the sum of eta times the pixels' int8
+    features
     """
     S_f = np.asarray(channels["S"], np.float64).reshape(-1)
     count = np.asarray(channels["count"], np.int64).reshape(-1, 1)
@@ -95,8 +106,14 @@ def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
     k = np.maximum(count, 1)
     normal = np.rint(np.asarray(channels["normal_sum"], np.float64) * NORMAL_STEPS / k).astype(np.int64)
     rgb = np.rint(np.asarray(channels["rgb_sum"], np.float64) / k).astype(np.int64)
-    return Delta(keys, {"E": s[:, None] * d, "S": (D_STEPS * s)[:, None], "rgb_sum": count * rgb,
-                        "normal_sum": count * normal, "count": count}, dict(DELTA_FACTORS))
+    out = {"E": s[:, None] * d, "S": (D_STEPS * s)[:, None], "rgb_sum": count * rgb, "normal_sum": count * normal,
+           "count": count}
+    if "Z" in channels:  # the weighted mean feature (within the int8 range: a mean of int8 values), times s
+        Zf = np.asarray(channels["Z"], np.float64)
+        z = np.zeros(Zf.shape, np.int64)
+        z[has] = np.rint(Zf[has] / S_f[has, None]).astype(np.int64)
+        out["Z"] = s[:, None] * np.clip(z, -127, 127)
+    return Delta(keys, out, {k: v for k, v in DELTA_FACTORS.items() if k in out})
 
 
 def semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: np.ndarray,

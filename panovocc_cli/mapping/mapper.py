@@ -59,8 +59,9 @@ from .rpu import DeltaStore, ReversibleMemory, has_store
 
 
 def memory_channels(config: MapperConfig) -> tuple[ChannelSpec, ...]:
-    """The memory channels of a mapper: A N F O, then E S rgb_sum normal_sum count with a vocabulary."""
-    return GEOMETRY_CHANNELS + (semantic_channels(len(config.vocab)) if config.vocab else ())
+    """The memory channels of a mapper: A N F O, then E S rgb_sum normal_sum count with a vocabulary (and Z with
+    features)."""
+    return GEOMETRY_CHANNELS + (semantic_channels(len(config.vocab), config.feature_dim) if config.vocab else ())
 
 
 def has_measurement(depth: np.ndarray) -> bool:
@@ -94,11 +95,42 @@ def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = No
             if logits.shape[:2] == (H, W) and s > 1:
                 logits = logits[::s, ::s]
             observation = observe(logits)
+            if config.feature_dim:
+                observation = dataclasses.replace(observation, features=_frame_features(frame, config))
+        elif config.feature_dim and observation.features is None:
+            raise PanovoccError(f"frame {frame.index}: its kept semantic observation has no features, the map keeps "
+                                "them (--features)")
         if rays is None:
             rays = frame.camera.rays()
         parts.append(semantic_delta(frame.depth, frame.rgb, observation, frame.T_world_cam, g.voxel_size,
                                     config.weights, g.min_range, g.max_range, rays))
     return FrameDelta(tuple(parts), observation)
+
+
+def _frame_features(frame: Frame, config: MapperConfig) -> np.ndarray:
+    """The frame's per-pixel features at the semantic stride, projected and quantised for the observation
+    (int8 (h, w, D): :func:`panovocc_cli.semantics.features.quantize_features`)."""
+    from ..semantics.features import quantize_features
+
+    if frame.features is None:
+        raise PanovoccError(f"frame {frame.index}: the map keeps features (--features) but the frame carries none "
+                            "(a segmenter that gives embeddings: simulated or clip)")
+    f = np.asarray(frame.features)
+    s = int(config.weights.stride)
+    H, W = frame.camera.shape
+    if f.shape[:2] == (H, W) and s > 1:
+        f = f[::s, ::s]
+    if f.shape[:2] != (-(-H // s), -(-W // s)):
+        raise PanovoccError(f"frame {frame.index}: features of shape {f.shape}, expected "
+                            f"{(-(-H // s), -(-W // s), 'F')} at the semantic stride {s}")
+    return quantize_features(f, _projection(f.shape[2], config.feature_dim))
+
+
+@functools.lru_cache(maxsize=4)
+def _projection(source_dim: int, dim: int) -> np.ndarray:
+    from ..semantics.features import projection
+
+    return projection(source_dim, dim)
 
 
 def _locked(method):
@@ -241,7 +273,8 @@ class Mapper:
         if len(delta) == 0:
             self.empty_frames.append(fid)
         if self.frame_source is None:  # the logits are not needed again: the delta keeps their observation
-            self._frames[fid] = dataclasses.replace(frame, logits=None) if delta.observation is not None else frame
+            self._frames[fid] = dataclasses.replace(frame, logits=None, features=None) \
+                if delta.observation is not None else frame
         self._next_id = max(self._next_id, fid + 1)
         return fid
 

@@ -76,6 +76,9 @@ def resolve_semantic(p: SemanticParams, seq: Sequence) -> SemanticParams:
     if spec == SEGMENTER_AUTO:
         spec = SIMULATED if seq.has_labels else SEGMENTER_NONE
     if spec == SEGMENTER_NONE:
+        if p.features:
+            raise PanovoccError("--features needs a segmenter that gives embeddings (--segmenter simulated or clip), "
+                                "not none")
         return dataclasses.replace(p, segmenter=SEGMENTER_NONE, vocab=[])
     if is_simulated(spec) and not seq.has_labels:
         raise PanovoccError("the simulated segmenter needs ground-truth labels (semantic/), which this sequence "
@@ -84,6 +87,11 @@ def resolve_semantic(p: SemanticParams, seq: Sequence) -> SemanticParams:
         folder = spec[len("precomputed:"):]
         spec = "precomputed:" + (str(Path(folder).resolve()) if folder else "")
     seg = build_segmenter(spec, seed=int(p.seed), noise=float(p.noise))  # validates spec, noise, folder
+    if p.features:
+        from ..semantics.segmenter import Segmenter
+
+        if type(seg).features is Segmenter.features:
+            seg.features(None)  # its one-line refusal, naming the segmenters that give embeddings
     return dataclasses.replace(p, segmenter=seg.spec or spec, vocab=list(vocab))
 
 
@@ -117,10 +125,12 @@ class SequenceFrames:
     vocab : list of str, the run's vocabulary (the logits' C classes)
     stride : int, the semantic stride s: the segmenter sees the image at pixels (s i, s j) and its logits
         are those pixels' (the mapper measures only there)
+    features : also ask the segmenter for its per-pixel embeddings (a map made with ``--features``)
     """
 
-    def __init__(self, seq: Sequence, segmenter=None, vocab=(), stride: int = 1):
+    def __init__(self, seq: Sequence, segmenter=None, vocab=(), stride: int = 1, features: bool = False):
         self.seq = seq
+        self.features = bool(features) and segmenter is not None
         self.stride = int(stride)
         self.segmenter = segmenter
         self.vocab = list(vocab)
@@ -136,7 +146,10 @@ class SequenceFrames:
         if self.segmenter is not None:  # no ground truth in the call: frame_id = the frame's index
             t0 = time.perf_counter()
             s = self.stride
-            frame.logits = self.segmenter.logits(frame.rgb[::s, ::s] if s > 1 else frame.rgb, self.vocab, frame_id=i)
+            rgb = frame.rgb[::s, ::s] if s > 1 else frame.rgb
+            frame.logits = self.segmenter.logits(rgb, self.vocab, frame_id=i)
+            if self.features:
+                frame.features = self.segmenter.features(rgb, frame_id=i)
             self.segmenter_seconds += time.perf_counter() - t0
         return frame
 
@@ -151,7 +164,7 @@ def sequence_frames(cfg: MapConfig, seq: Sequence) -> SequenceFrames:
     s = cfg.semantic
     labels = sequence_label_source(seq) if seq.has_labels else None  # the simulator's ground truth
     seg = build_segmenter(s.segmenter, seed=int(s.seed), noise=float(s.noise), label_source=labels)
-    return SequenceFrames(seq, seg, s.vocab, stride=int(s.weights.stride))
+    return SequenceFrames(seq, seg, s.vocab, stride=int(s.weights.stride), features=s.features)
 
 
 def concurrent_kernels_safe() -> bool:

@@ -428,18 +428,45 @@ class DenseClip:
 
         if not images_uint8:
             return []
-        h, w = images_uint8[0].shape[:2]
-        arr = np.stack([np.asarray(im, np.uint8) for im in images_uint8])
         with torch.inference_mode():
-            x = torch.from_numpy(arr).to(self.device).permute(0, 3, 1, 2).float() / 255.0
-            if (h, w) != tuple(size):
-                x = F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=False, antialias=True)
+            feats, (h, w) = self._patch_features_of(images_uint8, size)   # (B, gh, gw, D)
             t = self.text_features(vocab)
-            feats = self.patch_features(x)                             # (B, gh, gw, D)
             sims = torch.einsum("bijd,cd->bcij", feats, t) * self.scale
             up = F.interpolate(sims, size=(h, w), mode="bilinear", align_corners=False)
             out = up.permute(0, 2, 3, 1).contiguous().cpu().numpy().astype(np.float32)
         return list(out)
+
+    def features_images(self, images_uint8: Sequence[np.ndarray], size: tuple[int, int]) -> list:
+        """Per-pixel dense features of images: the normalised patch features (CLIP's joint image-text space,
+        the model's embedding dimension D), bilinearly upsampled from the patch grid to the image size like
+        the logits of :meth:`logits_images`. list of (h, w, D) float32."""
+        import torch
+        import torch.nn.functional as F
+
+        if not images_uint8:
+            return []
+        with torch.inference_mode():
+            feats, (h, w) = self._patch_features_of(images_uint8, size)
+            up = F.interpolate(feats.permute(0, 3, 1, 2), size=(h, w), mode="bilinear", align_corners=False)
+            out = up.permute(0, 2, 3, 1).contiguous().cpu().numpy().astype(np.float32)
+        return list(out)
+
+    def encode_text(self, texts: Sequence[str]) -> np.ndarray:
+        """Texts in the space of :meth:`features_images`: ``(n, D)`` float32 unit vectors, each the normalised mean
+        of its prompt-template features (:meth:`text_features`)."""
+        return self.text_features(list(texts)).cpu().numpy().astype(np.float32)
+
+    def _patch_features_of(self, images_uint8, size):
+        """(patch features (B, gh, gw, D) of the images resized to ``size``, the images' (h, w))."""
+        import torch
+        import torch.nn.functional as F
+
+        h, w = images_uint8[0].shape[:2]
+        arr = np.stack([np.asarray(im, np.uint8) for im in images_uint8])
+        x = torch.from_numpy(arr).to(self.device).permute(0, 3, 1, 2).float() / 255.0
+        if (h, w) != tuple(size):
+            x = F.interpolate(x, size=tuple(size), mode="bilinear", align_corners=False, antialias=True)
+        return self.patch_features(x), (h, w)
 
 
 def torch_cat(a, b):
@@ -536,18 +563,50 @@ class ClipSegmenter(Segmenter):
         n = self.tile_size()
         return self.net.logits_images(list(views), vocab, (n, n))
 
+    def features_views(self, views: Sequence[np.ndarray], vocab=None) -> list:
+        """Dense features ``(h, w, D)`` float32 of perspective images (one batch, at the tile size)."""
+        n = self.tile_size()
+        return self.net.features_images(list(views), (n, n))
+
+    def features(self, rgb: np.ndarray, *, frame_id=None) -> np.ndarray:
+        """Per-pixel dense CLIP features ``(H, W, D)`` float32 of one ERP frame: the tiles' features (NACLIP's
+        last block, normalised, upsampled) blended on the ERP grid by the same tiler as the logits (``rig=none``:
+        the whole image). D is the model's embedding dimension (512 for ViT-B-16)."""
+        rgb = self._check_rgb(rgb)
+        if self.cfg.rig == "none":
+            return self.net.features_images([rgb], self._whole_size(rgb))[0]
+        tiler = self._tiler().tiler(rgb.shape[1], rgb.shape[0])
+        return tiler.merge(self.features_views(tiler.split(rgb)))
+
+    def text_encoder(self):
+        """CLIP's text tower (prompt-template averaged, :meth:`DenseClip.encode_text`): the space of
+        :meth:`features`."""
+        return self.net.encode_text
+
+    def _check_rgb(self, rgb):
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise PanovoccError(f"expected an RGB image (H, W, 3) uint8, got {rgb.dtype} {rgb.shape}")
+        return rgb
+
+    def _whole_size(self, rgb) -> tuple[int, int]:
+        n = self.tile_size()
+        wide = abs(rgb.shape[1] - 2 * rgb.shape[0]) <= 2  # a panorama (or a strided one)
+        return (n, 2 * n) if wide else (n, n)
+
+    def _tiler(self):
+        if self._tiled is None:
+            from .tiling import TiledSegmenter, tiling_rig
+
+            fov = None if self.cfg.fov_deg is None else math.radians(self.cfg.fov_deg)
+            self._tiled = TiledSegmenter(self, tiling_rig(self.cfg.rig, self.tile_size(), fov))
+        return self._tiled
+
     def logits(self, rgb: np.ndarray, vocab: Sequence[str], *, frame_id=None) -> np.ndarray:
         """Per-pixel logits ``(H, W, C)`` float32 of one ERP frame (see :class:`~.segmenter.Segmenter`)."""
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise PanovoccError(f"expected an RGB image (H, W, 3) uint8, got {rgb.dtype} {rgb.shape}")
         if self.cfg.rig == "none":
-            n = self.tile_size()
-            wide = abs(rgb.shape[1] - 2 * rgb.shape[0]) <= 2  # a panorama (or a strided one)
-            return self.net.logits_images([rgb], vocab, (n, 2 * n) if wide else (n, n))[0]
-        if self._tiled is None:
-            from .tiling import TiledSegmenter, tiling_rig
-
-            fov = None if self.cfg.fov_deg is None else math.radians(self.cfg.fov_deg)
-            self._tiled = TiledSegmenter(self, tiling_rig(self.cfg.rig, self.tile_size(), fov))
-        return self._tiled.logits(rgb, vocab, frame_id=frame_id)
+            return self.net.logits_images([rgb], vocab, self._whole_size(rgb))[0]
+        return self._tiler().logits(rgb, vocab, frame_id=frame_id)

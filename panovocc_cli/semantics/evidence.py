@@ -101,15 +101,21 @@ def frame_semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: n
     if _chunk_voxels(depth, rays, werp, float(weights.range_scale), R, t, float(voxel_size), int(KEY_RANGE),
                      nch, lid, ckeys, nvox):
         raise PanovoccError(f"voxel index out of the lattice's range (|index| < {KEY_RANGE})")
-    E, S, rgb_sum, normal_sum, count, allkeys = _chunk_sums(depth, rays, classes, share, conf, int(obs.n_classes),
-                                                            rgb, werp, float(weights.range_scale), R, 0.1, nch, lid,
-                                                            ckeys, nvox, float(s * s))
+    feats = obs.features if getattr(obs, "features", None) is not None else np.zeros((h, w, 0), np.int8)
+    feats = np.ascontiguousarray(feats, dtype=np.int8)
+    E, S, rgb_sum, normal_sum, count, Z, allkeys = _chunk_sums(depth, rays, classes, share, conf, int(obs.n_classes),
+                                                               rgb, werp, float(weights.range_scale), R, 0.1, nch,
+                                                               lid, ckeys, nvox, float(s * s), feats)
     order = np.argsort(allkeys, kind="stable")  # same key: chunks stay in chunk order
-    uk, E, S, rgb_sum, normal_sum, count = _merge_chunks(allkeys, order, E, S, rgb_sum, normal_sum, count)
+    uk, E, S, rgb_sum, normal_sum, count, Z = _merge_chunks(allkeys, order, E, S, rgb_sum, normal_sum, count, Z)
     if (count == 0).any():  # voxels whose every pixel had eta = 0 (confidence 0, or float32 underflow)
         keep = count > 0
-        uk, E, S, rgb_sum, normal_sum, count = uk[keep], E[keep], S[keep], rgb_sum[keep], normal_sum[keep], count[keep]
-    return uk, {"E": E, "S": S, "rgb_sum": rgb_sum, "normal_sum": normal_sum, "count": count}
+        uk, E, S, rgb_sum, normal_sum, count, Z = (uk[keep], E[keep], S[keep], rgb_sum[keep], normal_sum[keep],
+                                                   count[keep], Z[keep])
+    out = {"E": E, "S": S, "rgb_sum": rgb_sum, "normal_sum": normal_sum, "count": count}
+    if feats.shape[2]:
+        out["Z"] = Z
+    return uk, out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -283,7 +289,7 @@ def _row_normals(pts, rng, okr, v, H, max_jump, R, nw):
 
 @nb.njit(cache=True, parallel=True)
 def _chunk_sums(depth, rays, classes, share, conf, C, rgb, werp, range_scale, R, max_jump, nch, lid, ckeys, nvox,
-                area):
+                area, feats):
     """Pass 2, over the same row chunks in parallel: each chunk's per-voxel sums over its pixels in pixel
     order (float64): E (n, C), S (n,), rgb_sum (n, 3), normal_sum (n, 3) float64, count (n,) int64 and the
     keys (n,), chunk after chunk (``n = nvox.sum()``; a voxel seen by several chunks has a row in each).
@@ -291,7 +297,8 @@ def _chunk_sums(depth, rays, classes, share, conf, C, rgb, werp, range_scale, R,
     Per pixel, the same expressions as the numpy reference: the observation's confidence ``conf`` and the
     shares ``share`` of its classes ``classes`` (:func:`.observation.measurement`), ``eta = float32(conf w_erp
     w_range) * area`` (``area`` = stride^2, exactly 1 at stride 1), the ``erp_normals`` normal (float64,
-    cast to float32) rotated to the world frame. ``C``: the vocabulary size (E's width).
+    cast to float32) rotated to the world frame. ``C``: the vocabulary size (E's width). ``feats`` (h, w, D)
+    int8: the observation's quantised features (D = 0: none), summed as ``Z += eta * feats`` (n, D).
     """
     H, W = depth.shape
     rows = (H + nch - 1) // nch
@@ -304,6 +311,8 @@ def _chunk_sums(depth, rays, classes, share, conf, C, rgb, werp, range_scale, R,
     col = np.zeros((tot, 3), np.float64)
     nrm = np.zeros((tot, 3), np.float64)
     cnt = np.zeros(tot, np.int64)
+    D = feats.shape[2]
+    Z = np.zeros((tot, D), np.float64)
     keys = np.empty(tot, np.int64)
     for c in nb.prange(nch):
         v0 = min(H, c * rows)
@@ -341,13 +350,15 @@ def _chunk_sums(depth, rays, classes, share, conf, C, rgb, werp, range_scale, R,
                 cnt[i] += 1
                 for k in range(3):
                     nrm[i, k] += nw[k, u]
-    return E, S, col, nrm, cnt, keys
+                for k in range(D):
+                    Z[i, k] += et * np.float64(feats[v, u, k])
+    return E, S, col, nrm, cnt, Z, keys
 
 
 @nb.njit(cache=True)
-def _merge_chunks(keys, order, E, S, col, nrm, cnt):
+def _merge_chunks(keys, order, E, S, col, nrm, cnt, Z):
     """Pass 3: the chunks' rows of the same voxel summed in chunk order (``order``: a stable argsort of
-    ``keys``); returns sorted unique keys and their E, S, rgb_sum, normal_sum, count."""
+    ``keys``); returns sorted unique keys and their E, S, rgb_sum, normal_sum, count, Z."""
     m = keys.shape[0]
     C = E.shape[1]
     n = 0
@@ -360,6 +371,8 @@ def _merge_chunks(keys, order, E, S, col, nrm, cnt):
     col2 = np.zeros((n, 3), np.float64)
     nrm2 = np.zeros((n, 3), np.float64)
     cnt2 = np.zeros(n, np.int64)
+    D = Z.shape[1]
+    Z2 = np.zeros((n, D), np.float64)
     g = -1
     for j in range(m):
         i = order[j]
@@ -373,4 +386,6 @@ def _merge_chunks(keys, order, E, S, col, nrm, cnt):
             col2[g, k] += col[i, k]
             nrm2[g, k] += nrm[i, k]
         cnt2[g] += cnt[i]
-    return uk, E2, S2, col2, nrm2, cnt2
+        for k in range(D):
+            Z2[g, k] += Z[i, k]
+    return uk, E2, S2, col2, nrm2, cnt2, Z2

@@ -42,11 +42,15 @@ class SemanticObservation:
     classes : (h, w, 2) uint8, the two most probable vocabulary indices of each measurement pixel
     q : (h, w, 2) uint8 in 0..15, their probabilities in 1/15
     n_classes : int, the vocabulary size C the indices refer to
+    features : (h, w, D) int8 or None, the segmenter's per-pixel embeddings projected to the map's D
+        dimensions and quantised to unit vectors in 1/127 steps (:func:`.features.quantize_features`); None
+        for a map without a feature channel
     """
 
     classes: np.ndarray
     q: np.ndarray
     n_classes: int
+    features: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -63,18 +67,27 @@ class SemanticObservation:
                 or (q.size and int(q.max()) > Q_LEVELS):
             raise PanovoccError(f"semantic observation: class indices must be < {self.n_classes} and q <= {Q_LEVELS}",
                                 where)
+        if self.features is not None:
+            f = np.asarray(self.features)
+            if f.dtype != np.int8 or f.ndim != 3 or f.shape[:2] != c.shape[:2] or f.shape[2] < 1:
+                raise PanovoccError(f"semantic observation: features {f.dtype} {f.shape}, expected int8 "
+                                    f"{c.shape[:2] + ('D',)}", where)
         return self
 
     def to_arrays(self) -> dict:
         """The arrays a delta record keeps: ``q`` as one byte a pixel (``q1 << 4 | q2``), ``classes`` the
         same way when the vocabulary has at most 16 words (``packed`` = 1), else as they are; and
-        ``n_classes``. Packed, the two planes compress to about three quarters of their bytes unpacked."""
+        ``n_classes``; ``features`` (int8) when the observation has them. Packed, the two planes compress to
+        about three quarters of their bytes unpacked."""
         q = np.asarray(self.q, np.uint8)
         c = np.asarray(self.classes, np.uint8)
         packed = self.n_classes <= 16
-        return {"q": (q[..., 0] << 4) | q[..., 1],
-                "classes": ((c[..., 0] << 4) | c[..., 1]) if packed else np.ascontiguousarray(c),
-                "packed": np.array([int(packed)], np.int64), "n_classes": np.array([int(self.n_classes)], np.int64)}
+        out = {"q": (q[..., 0] << 4) | q[..., 1],
+               "classes": ((c[..., 0] << 4) | c[..., 1]) if packed else np.ascontiguousarray(c),
+               "packed": np.array([int(packed)], np.int64), "n_classes": np.array([int(self.n_classes)], np.int64)}
+        if self.features is not None:
+            out["features"] = np.ascontiguousarray(self.features, np.int8)
+        return out
 
     @classmethod
     def from_arrays(cls, arrays: dict, where=None) -> "SemanticObservation":
@@ -85,7 +98,10 @@ class SemanticObservation:
             q = np.stack([q >> 4, q & 15], axis=-1)
             if int(np.asarray(arrays["packed"]).reshape(-1)[0]):
                 c = np.stack([c >> 4, c & 15], axis=-1)
-            obs = cls(c, q, int(np.asarray(arrays["n_classes"]).reshape(-1)[0]))
+            f = np.asarray(arrays["features"]) if "features" in arrays else None
+            if f is not None and f.dtype != np.int8:
+                raise ValueError(f"features are {f.dtype}, expected int8")
+            obs = cls(c, q, int(np.asarray(arrays["n_classes"]).reshape(-1)[0]), f)
         except (KeyError, IndexError, ValueError, TypeError) as e:
             raise PanovoccError(f"semantic observation unreadable ({type(e).__name__}: {e})", where) from None
         return obs.check(where)

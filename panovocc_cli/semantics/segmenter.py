@@ -49,3 +49,20 @@ class Segmenter(ABC):
         -------
         logits : (H, W, C) float32, finite; ``softmax`` over the last axis gives class probabilities
         """
+
+    def features(self, rgb: np.ndarray, *, frame_id=None) -> np.ndarray:
+        """Per-pixel language-aligned embeddings of one ERP frame, ``(H, W, F)`` float32 (F: the segmenter's
+        embedding dimension; text embedded by :meth:`text_encoder` lives in the same space). What a map made
+        with ``--features`` fuses (:mod:`.features`). Default: this segmenter gives none."""
+        from ..errors import PanovoccError
+
+        raise PanovoccError(f"segmenter {self.spec or type(self).__name__!r} gives no per-pixel embeddings: --features "
+                            "needs --segmenter simulated or clip")
+
+    def text_encoder(self):
+        """The :data:`.query.TextEncoder` whose embeddings live in the space of :meth:`features` (a map's
+        feature queries embed their text with it). Default: none."""
+        from ..errors import PanovoccError
+
+        raise PanovoccError(f"segmenter {self.spec or type(self).__name__!r} has no text encoder for feature queries")
+

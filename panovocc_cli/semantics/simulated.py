@@ -85,6 +85,7 @@ class SimulatedConfig:
     boundary_logit: float = 6.0  # push toward the neighbour's class at the boundary itself
     unlabeled_noise: float = 0.3  # field scale on unlabeled (id 0) pixels
     confidence: str = "calibrated"  # temperature preset (CONFIDENCE_MODELS), see ConfidenceModel
+    feature_noise: float = 0.5  # embedding mode: std of each pixel's Gaussian noise vector's length (x noise)
 
 
 @dataclass(frozen=True)
@@ -179,6 +180,55 @@ class SimulatedSegmenter(Segmenter):
     def logits(self, rgb: np.ndarray, vocab: Sequence[str], *, frame_id=None) -> np.ndarray:
         """Per-pixel logits ``(H, W, C)`` float32 (see :class:`Segmenter`); ``frame_id`` (an int frame index)
         selects the labels and seeds the noise."""
+        labels, class_names = self._labels(rgb, frame_id)
+        return simulate_logits(labels, class_names, vocab, int(frame_id), self.config)
+
+    def features(self, rgb: np.ndarray, *, frame_id=None) -> np.ndarray:
+        """Embedding mode, a simulator: per-pixel features ``(H, W, F)`` float32 in the space of the packaged
+        MiniLM text model (F = 384).
+
+        A pixel's feature is the text model's embeddings of the sequence's class names weighted by the
+        softmax of the simulated logits over all those names (:func:`simulate_logits`: the same smooth
+        fields, wrong-class blobs, eroded boundaries and temperature as the class route, so confusions and
+        boundary errors carry over), plus a seeded Gaussian vector of length about ``feature_noise * noise``
+        (``default_rng([seed, frame_id, 24])``). An exact segmenter (noise 0) gives the true class's
+        embedding. Queries in other words ("couch", "somewhere to sleep") are then answered through the same
+        text model: honest as a simulator, not evidence of what a real network's features do."""
+        from ..classes import canonical_name
+
+        labels, class_names = self._labels(rgb, frame_id)
+        words = list(dict.fromkeys(canonical_name(n) for n in class_names[1:]))
+        lg = simulate_logits(labels, class_names, words, int(frame_id), self.config)
+        lg = lg - lg.max(axis=2, keepdims=True)
+        p = np.exp(lg)
+        p /= p.sum(axis=2, keepdims=True)
+        emb = self._embeddings(tuple(words))
+        f = (p.reshape(-1, len(words)) @ emb).reshape(p.shape[:2] + (emb.shape[1],)).astype(np.float32)
+        sd = self.config.feature_noise * self.config.noise / np.sqrt(emb.shape[1])
+        if sd > 0:
+            rng = np.random.default_rng([int(self.config.seed), int(frame_id), 24])
+            f += np.float32(sd) * rng.standard_normal(f.shape, dtype=np.float32)
+        return f
+
+    def text_encoder(self):
+        """The packaged MiniLM text model (:func:`.query.minilm_encoder`), the space of :meth:`features`."""
+        if getattr(self, "_encode", None) is None:
+            from .query import minilm_encoder
+
+            self._encode = minilm_encoder()
+        return self._encode
+
+    def _embeddings(self, words: tuple) -> np.ndarray:
+        """(K, F) float32 text embeddings of class names (once per name list)."""
+        cache = self.__dict__.setdefault("_emb_cache", {})
+        if words not in cache:
+            from .query import _words
+
+            cache[words] = np.asarray(self.text_encoder()([_words(w) for w in words]), np.float32)
+        return cache[words]
+
+    def _labels(self, rgb, frame_id):
+        """The frame's ground-truth labels (at the pixels of ``rgb``: a stride) and class names."""
         if self.label_source is None:
             raise PanovoccError("the simulated segmenter needs ground-truth labels (SEQ/semantic/); "
                                 "use --segmenter precomputed:DIR for a sequence without them")
@@ -191,7 +241,7 @@ class SimulatedSegmenter(Segmenter):
             if not s:                                            # semantic stride): the labels of those pixels
                 raise PanovoccError(f"frame {frame_id}: labels {labels.shape} and rgb {np.shape(rgb)[:2]} differ")
             labels = labels[::s, ::s]
-        return simulate_logits(labels, class_names, vocab, int(frame_id), self.config)
+        return labels, class_names
 
 
 def sequence_label_source(seq) -> LabelSource:

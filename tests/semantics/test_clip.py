@@ -212,3 +212,42 @@ def test_map_command_without_weights_exits_2_on_one_line(tmp_path, capsys, monke
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and "how" not in out and "clip:MODEL@" in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+# --- dense features (issue 24) --------------------------------------------------------------------
+
+@pytest.mark.parametrize("rig", ["cube", "none"])
+def test_dense_features_through_the_tiling_are_the_logits_before_the_text(tiny, rig):
+    """The tiny CLIP's per-pixel features have the model's embedding width, and dotted with the words' text
+    features (times the logit scale) they are the logits, through the same tiling and blending."""
+    from panovocc_cli.semantics.registry import build_segmenter
+
+    seg = build_segmenter(f"clip:{tiny},rig={rig},size=32")
+    rgb = _rgb(32, seed=3)
+    f = seg.features(rgb)
+    D = seg.net.model.visual.proj.shape[1]
+    assert f.shape == (32, 64, D) and f.dtype == np.float32 and np.isfinite(f).all()
+    t = seg.text_encoder()(["wall", "bed"])
+    assert t.shape == (2, D)
+    np.testing.assert_allclose(np.linalg.norm(t, axis=1), 1.0, atol=1e-5)
+    lg = seg.logits(rgb, ["wall", "bed"])
+    np.testing.assert_allclose(f @ t.T * seg.net.scale, lg, atol=2e-3 * np.abs(lg).max())
+
+
+def test_map_with_clip_features_is_queried_with_clip_text(tiny, tmp_path, capsys):
+    """``map --segmenter clip:FOLDER --features``: the feature channel is filled from CLIP's dense features, and
+    ``query`` embeds its text with the same model's text tower."""
+    seq = write_labelled_room(tmp_path / "seq", 128, 2)
+    code, out, err = run_cli(capsys, ["map", seq, tmp_path / "out", "--segmenter", f"clip:{tiny},size=32",
+                                      "--vocab", "wall,floor", "--features", "--feature-dim", "16", "--quiet"])
+    assert code == 0, err
+    with np.load(tmp_path / "out" / "memory.npz") as z:
+        names = z["channel_names"].tolist()
+        widths = dict(zip(names, z["channel_widths"].tolist()))
+    assert widths["Z"] == 16
+    code, out, err = run_cli(capsys, ["query", tmp_path / "out", "a bed", "--json"])
+    assert code == 0, err
+    import json
+
+    res = json.loads(out)
+    assert res["by"] == "features" and res["match"]["voxels_with_features"] > 100
