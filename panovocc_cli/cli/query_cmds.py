@@ -221,10 +221,7 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     import numpy as np
 
     from ..classes import canonical_name
-    from ..grid import OCCUPIED_UNKNOWN_CLASS, Grid
-    from ..io.atomic import output_file
-    from ..io.grid import write_grid
-    from ..io.runconfig import check_file_output, write_run_config
+    from ..io.runconfig import check_file_output
     from ..mapping.export import export_memory
     from ..mapquery import open_map
     from ..semantics.query import minilm_encoder, parse_relabel_vocab, relabel_matrix

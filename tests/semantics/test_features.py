@@ -278,8 +278,6 @@ def test_relabel_by_features_to_words_the_map_never_saw_and_eval(qmap, tmp_path,
     with pytest.raises(PanovoccError, match="merges stored classes"):
         run_relabel(RelabelConfig(out, tmp_path / "m.npz", vocab="seat=object"), encode=fake_encoder())
     # panovocc eval scores the relabelled grid
-    from panovocc_cli.io.grid import write_grid  # noqa: F401  (the grid module's reader wrote above)
-
     code, text, err = run_cli(capsys, ["eval", tmp_path / "all.npz", tmp_path / "all.npz", "--classes", "all"])
     assert code == 0, err and "mIoU" in text
 
