@@ -484,8 +484,11 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
             before = previous_labels(previous, occ_keys, oi)
             if changed_keys is None:
                 raise PanovoccError("an incremental export needs the changed voxels' keys with the previous grid")
-            changed = np.concatenate([np.asarray(changed_keys, np.int64).reshape(-1),
-                                      occ_keys[before == UNKNOWN_CLASS]])
+            changed = np.asarray(changed_keys, np.int64).reshape(-1)
+            if occupancy.spill > 0:  # the thinning reads face neighbours: theirs may have changed state too
+                changed = np.concatenate([changed] + [k[ok] for k, ok in (_neighbour_keys(changed, a, d)
+                                                                          for a, d in FACES)])
+            changed = np.concatenate([changed, occ_keys[before == UNKNOWN_CLASS]])
         labels = label_occupied(occ_keys, sub, g, semantic, previous=before, changed_keys=changed)
         grid = apply_labels(grid, occ_keys, labels, vocab, in_place=True)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world

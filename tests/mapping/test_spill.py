@@ -180,3 +180,72 @@ def test_a_map_made_before_the_thinning_exports_without_it(tmp_path):
     d["occupancy"]["spill"] = 0.3
     _, o, _, _ = _read_sections(d, tmp_path / "config.json")
     assert o.spill == 0.3
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_incremental_export_with_the_thinning_equals_a_full_one(monkeypatch, seed):
+    """A voxel's thinning reads its face neighbours, so a change at one voxel can thin or restore the next:
+    the incremental export (previous grid + changed keys) still equals the full one bit for bit."""
+    from types import SimpleNamespace
+
+    from panovocc_cli.semantics.gsc import GSCParams
+
+    monkeypatch.setattr(export, "BLOCK", 4)
+    keys, ch, sets = _scene()
+    rng = np.random.default_rng(seed)
+    n, vocab = len(keys), ["wall", "floor", "chair"]
+    S = rng.integers(1, 5000, n)
+    ch = dict(ch, E=(rng.dirichlet(np.ones(3), n) * S[:, None]).astype(np.int64), S=S[:, None],
+              normal_sum=rng.integers(-99, 99, (n, 3)), rgb_sum=rng.integers(0, 9000, (n, 3)),
+              count=rng.integers(1, 40, (n, 1)))
+    sem = SimpleNamespace(use_gsc=True, gsc=GSCParams())
+    before = export_memory(keys, ch, 0.08, ON, vocab, sem)
+    # the surface layers lose support at a few voxels: the spill beside them is no longer thinned
+    surf = np.flatnonzero(np.isin(keys, np.concatenate([sets["smear_surface"], sets["between_surfaces"]])))
+    pick = rng.choice(surf, 6, replace=False)
+    ch2 = {c: v.copy() for c, v in ch.items()}
+    ch2["A"][pick] //= 4
+    full = export_memory(keys, ch2, 0.08, ON, vocab, sem)
+    assert not np.array_equal(full.occupied_keys, before.occupied_keys)  # the thinning changed elsewhere
+    inc = export_memory(keys, ch2, 0.08, ON, vocab, sem, previous=before.grid, changed_keys=keys[pick])
+    assert np.array_equal(inc.occupied_keys, full.occupied_keys)
+    assert inc.grid.labels.tobytes() == full.grid.labels.tobytes()
+
+
+def test_incremental_export_relabels_around_a_voxel_thinned_by_its_neighbours_change(monkeypatch):
+    """A spill thinned because its surface neighbour gained support is not itself a changed voxel; a voxel
+    that took its label (nearest-evidence transfer) in a cube whose halo does not reach the changed surface
+    is still labelled again (the changed keys' face neighbours count as changed)."""
+    from types import SimpleNamespace
+
+    from panovocc_cli.semantics.gsc import GSCParams
+
+    monkeypatch.setattr(export, "BLOCK", 7)  # cube [0, 7) in x: its halo of 1 reaches x = 7, not x = 8
+    surface, spill, lone = _layer(0, 8), _layer(0, 7), np.array([[6, 6, 2]])
+    idx = np.concatenate([surface, spill, lone])
+    keys = pack_keys(idx)
+    order = np.argsort(keys)
+    n = len(keys)
+    ch = {c: np.concatenate([v1, v2, v3])[order] for c, v1, v2, v3 in
+          ((c, _rows(surface, 8, 0.5)[c], _rows(spill, 8, 0.5)[c], _rows(lone, 8, 0.5)[c]) for c in GEOMETRY_NAMES)}
+    keys = keys[order]
+    is_lone = keys == pack_keys(lone)[0]
+    E = np.zeros((n, 2), np.int64)
+    E[:, 0] = 100
+    E[is_lone] = 0  # the lone voxel has no evidence: it takes the nearest spill voxel's class
+    ch.update(E=E, S=np.where(is_lone, 0, 100)[:, None], normal_sum=np.zeros((n, 3), np.int64),
+              rgb_sum=np.zeros((n, 3), np.int64), count=np.ones((n, 1), np.int64))
+    sem = SimpleNamespace(use_gsc=False, gsc=GSCParams(max_dist_vox=1.5))
+    before = export_memory(keys, ch, 0.08, ON, ["wall", "floor"], sem)
+    lone_key = pack_keys(lone)[0]
+    assert before.labels[np.searchsorted(before.occupied_keys, lone_key)] == 0  # the spill's class
+    changed = keys[np.isin(keys, pack_keys(surface))]
+    ch2 = {c: v.copy() for c, v in ch.items()}
+    at = np.isin(keys, changed)
+    ch2["N"][at], ch2["A"][at] = 40, int(40 * 0.5 * FIXED_SCALE)  # the surface's share now 5 times the spill's
+    full = export_memory(keys, ch2, 0.08, ON, ["wall", "floor"], sem)
+    assert not np.isin(pack_keys(spill), full.occupied_keys).any()  # thinned
+    assert full.labels[np.searchsorted(full.occupied_keys, lone_key)] == -1
+    inc = export_memory(keys, ch2, 0.08, ON, ["wall", "floor"], sem, previous=before.grid, changed_keys=changed)
+    assert np.array_equal(inc.labels, full.labels)
+    assert inc.grid.labels.tobytes() == full.grid.labels.tobytes()
