@@ -8,7 +8,7 @@ DEB_PKGS := libgl1 libegl1 libusb-1.0-0 libgomp1 libosmesa6
 DEMO := work/demo
 export PYOPENGL_PLATFORM ?= osmesa
 
-.PHONY: setup demo test test-quick bench bench-render bench-scale bench-shards reproduce-tables clean help
+.PHONY: setup demo test test-quick bench bench-jitter bench-render bench-scale bench-shards reproduce-tables clean help
 
 help:
 	@echo "make demo   set up .venv, then render -> map -> eval on the embedded default scene"
@@ -17,6 +17,7 @@ help:
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
 	@echo "make bench-shards  map frames/s on 1 and 2 Dask workers (one thread each), the bytes a shard sends back"
+	@echo "make bench-jitter  occupancy IoU against per-frame pose jitter, clean and realistic depth, spill thinning off/on"
 	@echo "make bench-scale  the long-term memory at building scale: RAM, disk, time per frame early and late, revise"
 	@echo "make pan-holo  the embedded Pan-Holo split: a house, realistic depth, 300 frames, lifted ground truth"
 	@echo "make gt-protocol  lifted ground truth and the mapper against mesh truth (4 seeds, clean and realistic depth)"
@@ -57,6 +58,12 @@ bench: setup
 # map, revise 1,000 frames; one table in work/bench-scale/scale.{md,csv,json}. SCALE_ARGS: e.g. --scene house.
 bench-scale: setup
 	$(BIN)/python -m panovocc_cli.benchmark.scale work/bench-scale $(SCALE_ARGS)
+
+# Pose jitter (issue 22; docs/slam.md "Pose jitter"): homes 2-4, 60 frames at 512x256, clean and realistic depth,
+# jitter 0 / 5 mm 0.05 deg / 10 mm 0.1 deg / 20 mm 0.2 deg, each map exported with the spill thinning off and on;
+# work/bench-jitter/jitter.{csv,md}, every step kept and reused. JITTER_ARGS: e.g. --seeds 0 --house.
+bench-jitter: setup
+	$(BIN)/python -m panovocc_cli.benchmark.jitter work/bench-jitter $(JITTER_ARGS)
 
 # map --workers (docs/sharding.md): frames/s on 1 and 2 local Dask workers, one thread each, same frames
 bench-shards: setup

@@ -271,6 +271,8 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
         if "observe_hits" not in d["geometry"]:  # made before O counted N: resume and revise as it was made
             g = dataclasses.replace(g, observe_hits=False)
         o = typed_from_json(OccupancyParams, d["occupancy"])
+        if "spill" not in d["occupancy"]:  # made before the spill thinning: export as it was made
+            o = dataclasses.replace(o, spill=0.0)
         s = SemanticParams.from_json(d.get("semantic"))
         origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]
     except (KeyError, TypeError, ValueError, AttributeError) as e:

@@ -9,6 +9,13 @@ Two decision rules (``OccupancyParams.rule``; defaults and reasons: docs/mapping
   occupied iff N > 0 and ``g >= tau_s`` (strong), or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f``
   (weak support not contradicted by free space).
 
+Either rule can be followed by the **spill thinning** (``OccupancyParams.spill`` > 0, off by default;
+:func:`thin_spill`): an occupied voxel in a sheet beside a face neighbour with a much larger support share
+``A / max(O, 1)`` (and no occupied voxel on its other side, or a second such neighbour there), whose hits
+each brought as much support as the neighbour's, is that neighbour's surface smeared over the face by
+pose error, and is not occupied. It reads each voxel's six face neighbours by key (``lookup``), so a
+region's decision does not depend on how the memory is sliced.
+
 An unoccupied voxel is free (0) when some frame carved it (F > 0) and unobserved (255) otherwise. The
 score g is exported either way (the semantic consolidation uses it).
 
@@ -31,7 +38,7 @@ from ..geometry.lattice import KEY_RANGE, index_to_center, pack_keys, unpack_ind
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.gsc import BLOCK, block_halo, consolidate_blocks, unaries
 from .contributors import NORMAL_STEPS, S_SCALE
-from .memory import FIXED_SCALE
+from .memory import FIXED_SCALE, GEOMETRY_NAMES
 from .params import RULES, OccupancyParams
 
 UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
@@ -64,6 +71,112 @@ def classify(A, N, F, O, p: OccupancyParams) -> tuple[np.ndarray, np.ndarray, np
     return occ, free, g
 
 
+FACES = tuple((axis, sign) for axis in range(3) for sign in (1, -1))  # the six face neighbours
+
+
+def _neighbour_keys(keys: np.ndarray, axis: int, sign: int) -> tuple[np.ndarray, np.ndarray]:
+    """Keys (n,) of the face neighbours ``keys + sign e_axis`` and whether each lies on the lattice (the
+    keys of those that do not are meaningless)."""
+    idx = unpack_keys(keys)
+    idx[:, axis] += sign
+    ok = np.abs(idx[:, axis]) < KEY_RANGE
+    idx[~ok, axis] = 0
+    return pack_keys(idx), ok
+
+
+def _support_share(A, O) -> np.ndarray:
+    """``A / max(O, 1)`` (float64, A fixed point): a voxel's kernel support per observing frame."""
+    return (np.asarray(A, np.float64).reshape(-1) / FIXED_SCALE) / np.maximum(np.asarray(O, np.float64).reshape(-1), 1.0)
+
+
+def thin_spill(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: OccupancyParams) -> np.ndarray:
+    """The occupied mask of ``keys`` after the spill thinning (docs/mapping.md, step 6).
+
+    With a voxel's support share ``a = A / max(O, 1)`` and support per hit frame ``s = A / max(N, 1)``, an
+    occupied voxel v is a spill, and not occupied, when across each axis j != i it has an occupied
+    neighbour (it lies in a sheet parallel to the faces normal to axis i) and, along axis i, either
+
+    * (face) its neighbour u = v + d e_i is occupied, ``a_v < spill a_u``, ``s_v >= spill_support s_u``
+      and the neighbour on its other side, v - d e_i, is not occupied (free or unobserved); or
+    * (between) both v +- e_i are occupied, ``a_v < spill_between min(a)`` and ``s_v >= spill_support
+      min(s)`` of the two.
+
+    The support-per-hit test keeps a voxel that a surface only clips (the end of a wall, a tie on a face:
+    every hit brings less support) and takes one that whole surface patches fell in, in a minority of the
+    frames (pose error). Every test reads the base rule's decisions (:func:`classify`), never thinned
+    ones, so the result does not depend on the order or the grouping of the voxels.
+
+    Parameters
+    ----------
+    keys : (n,) int64 voxel keys; channels : their A, N, F, O ((n, 1) int64)
+    occ : (n,) bool, the base rule's decision at ``keys``
+    lookup : callable ``keys -> dict`` of A, N, F, O ((m, 1) int64, zeros for a voxel not in the memory)
+        at any voxels: the memory read by key
+    p : OccupancyParams (``spill`` > 0, ``spill_between``, ``spill_support``)
+
+    Returns
+    -------
+    (n,) bool, ``occ`` less the spills
+    """
+    if p.spill <= 0 or not occ.any():
+        return occ
+    sel = np.flatnonzero(occ)
+    kk = np.asarray(keys, np.int64).reshape(-1)[sel]
+    share = _support_share(channels["A"], channels["O"])[sel]
+    per_hit = signed_score(channels["A"], channels["N"], channels["F"], channels["O"])[0][sel]
+    nb = {}
+    for axis, sign in FACES:
+        nk, ok = _neighbour_keys(kk, axis, sign)
+        c = lookup(nk)
+        o = classify(c["A"], c["N"], c["F"], c["O"], p)[0]
+        nb[axis, sign] = (o & ok, np.where(ok, _support_share(c["A"], c["O"]), 0.0),
+                          np.where(ok, signed_score(c["A"], c["N"], c["F"], c["O"])[0], 0.0))
+    sheet = [nb[j, 1][0] | nb[j, -1][0] for j in range(3)]  # an occupied neighbour across axis j
+    spill = np.zeros(len(sel), bool)
+    for axis in range(3):
+        across = np.logical_and.reduce([sheet[j] for j in range(3) if j != axis])
+        for sign in (1, -1):
+            u_occ, u_share, u_hit = nb[axis, sign]
+            spill |= (across & u_occ & (share < p.spill * u_share) & (per_hit >= p.spill_support * u_hit)
+                      & ~nb[axis, -sign][0])
+        (u_occ, u_share, u_hit), (w_occ, w_share, w_hit) = nb[axis, 1], nb[axis, -1]
+        spill |= (across & u_occ & w_occ & (share < p.spill_between * np.minimum(u_share, w_share))
+                  & (per_hit >= p.spill_support * np.minimum(u_hit, w_hit)))
+    out = occ.copy()
+    out[sel[spill]] = False
+    return out
+
+
+def decide(keys, channels, p: OccupancyParams, lookup=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`classify` of the voxels ``keys`` (their channels A, N, F, O) followed, with ``p.spill > 0``, by
+    :func:`thin_spill` (which needs ``lookup``): occupied and free masks and the score g."""
+    occ, free, g = classify(channels["A"], channels["N"], channels["F"], channels["O"], p)
+    if p.spill > 0:
+        if lookup is None:
+            raise PanovoccError("the spill thinning needs the voxels' neighbours (a lookup of the memory by key)")
+        thin = thin_spill(keys, channels, occ, lookup, p)
+        free = free | (occ & ~thin & (np.asarray(channels["F"]).reshape(-1) > 0))
+        occ = thin
+    return occ, free, g
+
+
+def key_lookup(keys: np.ndarray, channels):
+    """:func:`thin_spill`'s ``lookup`` over sorted ``keys`` and their channels (a dict of (n, w) arrays, or a
+    reader with ``at(positions, names)``): the geometry channels at any keys, zeros where absent."""
+    keys = np.asarray(keys, np.int64)
+
+    def lookup(q: np.ndarray) -> dict:
+        q = np.asarray(q, np.int64)
+        if len(keys) == 0:
+            return {n: np.zeros((len(q), 1), np.int64) for n in GEOMETRY_NAMES}
+        pos = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
+        found = keys[pos] == q
+        c = channels.at(pos, GEOMETRY_NAMES) if hasattr(channels, "at") else {n: channels[n][pos] for n in GEOMETRY_NAMES}
+        return {n: np.where(found[:, None], np.asarray(c[n], np.int64), 0) for n in GEOMETRY_NAMES}
+
+    return lookup
+
+
 def memory_to_grid(keys: np.ndarray, channels: dict, voxel_size: float, p: OccupancyParams,
                    class_names=("empty",)) -> tuple[Grid, np.ndarray]:
     """Three-state grid over the box of all observed voxels.
@@ -91,16 +204,16 @@ def _slices(n: int):
 def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
     """:func:`memory_to_grid`'s grid and occupied keys, and the positions (m,) of the occupied voxels in
     ``keys`` with their score g (m,) (:func:`_grid_of_pieces` of one piece)."""
-    return _grid_of_pieces(lambda: [(keys, channels, None)], voxel_size, p, class_names)
+    return _grid_of_pieces(lambda: [(keys, channels, None)], voxel_size, p, class_names,
+                           lookup=key_lookup(keys, channels) if p.spill > 0 else None)
 
 
 def _geometry(channels, sl: slice) -> dict:
-    geo = ("A", "N", "F", "O")
-    return channels.at(np.arange(sl.start, sl.stop), geo) if hasattr(channels, "at") else \
-        {k: channels[k][sl] for k in geo}
+    return channels.at(np.arange(sl.start, sl.stop), GEOMETRY_NAMES) if hasattr(channels, "at") else \
+        {k: channels[k][sl] for k in GEOMETRY_NAMES}
 
 
-def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=("empty",)):
+def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=("empty",), lookup=None):
     """The three-state grid of non-zero voxels given in pieces, the occupied voxels' keys (m,), ids (m,)
     int64 and score g (m,).
 
@@ -108,7 +221,8 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
     or a reader with ``at(positions, names)``) and an id per voxel that the caller's reader of the occupied
     voxels understands (None: the position in the concatenated keys). Called twice (the grid's box, then
     the grid), each piece in slices of :data:`CHUNK` voxels: the temporaries beside the grid are a slice's
-    and the occupied voxels' keys, ids and g (the states and g are the same as one :func:`classify` call's).
+    and the occupied voxels' keys, ids and g (the states and g are the same as one :func:`decide` call's).
+    ``lookup``: the memory's geometry channels at any keys (:func:`thin_spill`; needed with ``p.spill > 0``).
     """
     g_occ, occ_keys, occ_ids = [], [], []
     i0 = np.full(3, np.iinfo(np.int64).max, np.int64)
@@ -117,7 +231,7 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
     for keys, channels, ids in pieces():
         for sl in _slices(len(keys)):  # a memory's channels are read a slice at a time (never all at once)
             c = _geometry(channels, sl)
-            occ, free, g = classify(c["A"], c["N"], c["F"], c["O"], p)
+            occ, free, g = decide(keys[sl], c, p, lookup)
             g_occ.append(g[occ])
             occ_keys.append(keys[sl][occ])
             occ_ids.append(np.flatnonzero(occ) + (offset + sl.start) if ids is None else ids[sl][occ])
@@ -136,7 +250,7 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
     for keys, channels, _ in pieces():
         for sl in _slices(len(keys)):
             c = _geometry(channels, sl)
-            occ, free, _ = classify(c["A"], c["N"], c["F"], c["O"], p)
+            occ, free, _ = decide(keys[sl], c, p, lookup)
             kept = occ | free
             local = unpack_keys(keys[sl][kept]) - i0
             labels[local[:, 0], local[:, 1], local[:, 2]] = np.where(occ[kept], OCCUPIED_UNKNOWN_CLASS,
@@ -327,7 +441,7 @@ def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
 
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
                   vocab=(), semantic=None, origin_index=(0, 0, 0), *, previous: Grid | None = None,
-                  changed_keys: np.ndarray | None = None, pieces=None, reader=None) -> MapExport:
+                  changed_keys: np.ndarray | None = None, pieces=None, reader=None, lookup=None) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
@@ -351,11 +465,14 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
         time (:func:`_grid_of_pieces`, e.g. ``VoxelMemory.nonzero_slabs``) and ``reader(ids)``, the
         occupied voxels' channels (:class:`OccupiedChannels`) from their ids: an export that never holds
         every non-zero voxel's key at once
+    lookup : with ``pieces``, the memory's geometry channels at any keys (``VoxelMemory.gather``): the spill
+        thinning's neighbours (:func:`thin_spill`; needed with ``occupancy.spill > 0``)
     """
     if pieces is None:
         pieces = (lambda: [(keys, channels, None)])
         reader = (lambda ids: OccupiedChannels(channels, ids))
-    grid, occ_keys, ids, g = _grid_of_pieces(pieces, voxel_size, occupancy)
+        lookup = key_lookup(keys, channels) if occupancy.spill > 0 else None
+    grid, occ_keys, ids, g = _grid_of_pieces(pieces, voxel_size, occupancy, lookup=lookup)
     # a memory's channels are read at the occupied voxels only, and each when it is needed
     sub = reader(ids)
     del ids
@@ -367,8 +484,11 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
             before = previous_labels(previous, occ_keys, oi)
             if changed_keys is None:
                 raise PanovoccError("an incremental export needs the changed voxels' keys with the previous grid")
-            changed = np.concatenate([np.asarray(changed_keys, np.int64).reshape(-1),
-                                      occ_keys[before == UNKNOWN_CLASS]])
+            changed = np.asarray(changed_keys, np.int64).reshape(-1)
+            if occupancy.spill > 0:  # the thinning reads face neighbours: theirs may have changed state too
+                changed = np.concatenate([changed] + [k[ok] for k, ok in (_neighbour_keys(changed, a, d)
+                                                                          for a, d in FACES)])
+            changed = np.concatenate([changed, occ_keys[before == UNKNOWN_CLASS]])
         labels = label_occupied(occ_keys, sub, g, semantic, previous=before, changed_keys=changed)
         grid = apply_labels(grid, occ_keys, labels, vocab, in_place=True)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world

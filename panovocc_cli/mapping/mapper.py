@@ -54,7 +54,7 @@ from ..io.poses import write_poses
 from .config import MapperConfig
 from .contributors import geometry_delta, semantic_channels, semantic_delta
 from .export import MapExport, OccupiedChannels, export_memory
-from .memory import GEOMETRY_CHANNELS, ChannelSpec, FrameDelta, NonzeroChannels, VoxelMemory
+from .memory import GEOMETRY_CHANNELS, GEOMETRY_NAMES, ChannelSpec, FrameDelta, NonzeroChannels, VoxelMemory
 from .rpu import DeltaStore, ReversibleMemory, has_store
 
 
@@ -358,7 +358,8 @@ class Mapper:
         reader = (lambda loc: OccupiedChannels(NonzeroChannels(mem, loc), np.arange(len(loc))))
         return export_memory(None, None, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
                              self.config, origin_index=self.config.origin_index(), previous=previous,
-                             changed_keys=changed_keys, pieces=pieces, reader=reader)
+                             changed_keys=changed_keys, pieces=pieces, reader=reader,
+                             lookup=lambda keys: mem.gather(keys, GEOMETRY_NAMES))  # the spill thinning's neighbours
 
     def prediction(self) -> Grid:
         """The semantic occupancy grid: 1..C vocabulary classes (254 occupied without class), 0 free,

@@ -861,12 +861,13 @@ class VoxelMemory:
                 out[name] = sparse[:, s0:s0 + spec.width]
         return out
 
-    def gather(self, keys: np.ndarray) -> dict:
-        """Channel values at voxel ``keys`` (n,) int64 -> dict name -> (n, width) int64 (zeros if absent)."""
+    def gather(self, keys: np.ndarray, names=None) -> dict:
+        """Channel values at voxel ``keys`` (n,) int64 -> dict name -> (n, width) int64 (zeros if absent);
+        ``names``: those channels only (default all)."""
         keys = np.ascontiguousarray(keys, dtype=np.int64)
         loc = np.empty(len(keys), np.int64)
         _locate(self._table_keys, self._table_slots, keys, loc)
-        return self._channels_at(loc, [c.name for c in self.specs])
+        return self._channels_at(loc, [c.name for c in self.specs] if names is None else list(names))
 
     def _split(self, rows: np.ndarray) -> dict:
         return {c.name: rows[:, self.offsets[c.name]: self.offsets[c.name] + c.width] for c in self.specs}

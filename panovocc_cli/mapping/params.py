@@ -70,6 +70,8 @@ class OccupancyParams:
     ``rule = "frequency"`` (default): occupied iff ``N / max(O, 1) - lambda_n F / max(O, 1) >= nu``.
     ``rule = "score"`` (the paper's): with ``g = A / max(N, 1) - lambda_f F / max(O, 1)``, occupied iff
     N > 0 and ``g >= tau_s``, or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f``.
+    ``spill > 0``: then the spill thinning of :func:`~panovocc_cli.mapping.export.thin_spill` (needs the voxels'
+    face neighbours; maps made before it, whose config.json has no ``spill`` key, export without it).
     """
 
     rule: str = option("frequency", choices=RULES,
@@ -82,3 +84,14 @@ class OccupancyParams:
     tau_s: float = option(0.12, help="Score rule: strong support threshold tau_s on g (per-frame support units).")
     tau_w: float = option(0.04, help="Score rule: weak support threshold tau_w on g.")
     gamma_f: float = option(0.6, min=0, max=1, help="Score rule: largest free-space ratio F/O for weak support (0..1).")
+    spill: float = option(0.0, min=0, max=1,
+                          help="Spill thinning (0 = off): an occupied voxel in a sheet whose support share A/O is "
+                               "below this times an occupied face neighbour's, with no occupied voxel on its "
+                               "other side, is that neighbour's surface smeared over the face by pose error (0..1; "
+                               "docs/mapping.md).")
+    spill_between: float = option(0.5, min=0, max=1,
+                                  help="Spill thinning: the same between two occupied face neighbours, against the "
+                                       "smaller of their support shares (0..1).")
+    spill_support: float = option(0.7, min=0,
+                                  help="Spill thinning: a spill's support per hit frame A/N is at least this times "
+                                       "its neighbour's (a voxel a surface only clips is kept).")

@@ -1,0 +1,164 @@
+"""``make bench-jitter``: occupancy IoU against per-frame pose jitter (issue 22), with and without the spill thinning.
+
+    python -m panovocc_cli.benchmark.jitter WORK [--seeds 2,3,4] [--house] [--spill 0,0.2] ...
+
+For each home ``panovocc synth sK --seed K`` (``--house``: ``--house --seed K --frames 150``): its mesh ground
+truth (``panovocc gt``), a clean and a realistic-noise render (``panovocc render --width W [--noise realistic
+--seed K]``), and for each jitter (sigma_t metres, sigma_r degrees) a jittered copy of the true poses
+(``panovocc traj perturb SEQ/poses.txt P --jitter T --rot-jitter-deg R --seed S``) mapped as the CLI maps
+(``panovocc map SEQ OUT --poses P --segmenter none --checkpoint-every 0``; (0, 0) maps SEQ/poses.txt). Each
+map's memory is then exported with each ``--spill`` value (``Mapper.export``, the function ``panovocc map``
+writes prediction.npz with; ``--spill 0`` is the map's own prediction) and scored like ``panovocc eval``
+(FreeOcc IoU, ``evaluation.metrics.count_pair``). Every step's output is kept in WORK and reused when
+present, so a rerun only adds what is missing.
+
+Writes ``WORK/jitter.csv`` (scene, depth, sigma_t_mm, sigma_r_deg, spill, iou, loss = true-pose IoU at the
+same spill minus this one) and ``WORK/jitter.md`` (one row per scene, depth and spill).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+JITTERS = ((0.0, 0.0), (0.005, 0.05), (0.01, 0.1), (0.02, 0.2))  # (sigma_t metres, sigma_r degrees)
+DEPTHS = ("clean", "realistic")
+
+
+def _panovocc(*args) -> None:
+    subprocess.run([sys.executable, "-m", "panovocc_cli", *map(str, args)], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def _scene(work: Path, seed: int, house: bool, width: int) -> tuple[str, Path, dict]:
+    """Name, ground truth and the two renders of one scene (made when missing)."""
+    name = f"{'house' if house else 'home'}{seed}"
+    scene, gt = work / name, work / f"{name}.gt.npz"
+    if not scene.exists():
+        _panovocc("synth", scene, "--seed", seed, *(["--house", "--frames", 150] if house else []))
+    if not gt.exists():
+        _panovocc("gt", scene, gt)
+    seqs = {}
+    for depth in DEPTHS:
+        seq = work / f"{name}.{depth}"
+        if not seq.exists():
+            _panovocc("render", scene, seq, "--width", width,
+                      *(["--noise", "realistic", "--seed", seed] if depth == "realistic" else []))
+        seqs[depth] = seq
+    return name, gt, seqs
+
+
+def _map(work: Path, seq: Path, name: str, depth: str, jitter: tuple, seed: int) -> Path:
+    """The map of ``seq`` with its poses jittered by ``jitter`` (made when missing)."""
+    t, r = jitter
+    tag = f"{name}.{depth}.t{t * 1000:g}mm.r{r:g}deg"
+    out = work / f"{tag}.map"
+    if (out / "prediction.npz").exists():
+        return out
+    poses = []
+    if t or r:
+        pf = work / f"{name}.t{t * 1000:g}mm.r{r:g}deg.s{seed}.poses.txt"
+        if not pf.exists():
+            _panovocc("traj", "perturb", seq / "poses.txt", pf, "--jitter", t, "--rot-jitter-deg", r, "--seed", seed)
+        poses = ["--poses", pf]
+    _panovocc("map", seq, out, *poses, "--segmenter", "none", "--checkpoint-every", 0, "--quiet", "--overwrite")
+    return out
+
+
+def _ious(map_dir: Path, gt, spills) -> dict:
+    """FreeOcc IoU (%) of the map's memory exported with each spill value."""
+    from ..evaluation.metrics import count_pair
+    from ..mapquery import open_map
+
+    mapper = open_map(map_dir)
+    try:
+        out = {}
+        base = mapper.config
+        for k in spills:
+            mapper.config = dataclasses.replace(base, occupancy=dataclasses.replace(base.occupancy, spill=float(k)))
+            c = count_pair(mapper.export().grid, gt)["freeocc"]
+            out[k] = 100.0 * c.tp / max(c.tp + c.fp + c.fn, 1)
+        mapper.config = base
+        return out
+    finally:
+        mapper.close()
+
+
+def run(work: Path, seeds, house: bool, width: int, spills, jitters, jitter_seed: int, progress=None) -> list:
+    """Rows of the table (dicts), every map made or reused in ``work``."""
+    from ..io.grid import read_grid
+
+    rows = []
+    for seed in seeds:
+        name, gt_path, seqs = _scene(work, seed, house, width)
+        gt = read_grid(gt_path)
+        for depth in DEPTHS:
+            ref = None
+            for jitter in jitters:
+                ious = _ious(_map(work, seqs[depth], name, depth, jitter, jitter_seed), gt, spills)
+                ref = ious if jitter == (0.0, 0.0) else ref
+                for k in spills:
+                    rows.append({"scene": name, "depth": depth, "sigma_t_mm": round(jitter[0] * 1000, 3),
+                                 "sigma_r_deg": jitter[1], "spill": k, "iou": round(ious[k], 2),
+                                 "loss": None if ref is None else round(ref[k] - ious[k], 2)})
+                if progress:
+                    progress(rows[-len(spills):])
+    return rows
+
+
+def markdown(rows, jitters) -> str:
+    """One line per scene, depth and spill: the true-pose IoU, then the IoU (loss) at each jitter."""
+    head = ["scene", "depth", "spill"] + [f"{t * 1000:g} mm / {r:g}°" for t, r in jitters]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    keyed = {}
+    for r in rows:
+        keyed.setdefault((r["scene"], r["depth"], r["spill"]), {})[(r["sigma_t_mm"], r["sigma_r_deg"])] = r
+    for (scene, depth, k), cells in keyed.items():
+        vals = []
+        for t, rr in jitters:
+            c = cells.get((round(t * 1000, 3), rr))
+            vals.append("–" if c is None else f"{c['iou']:.2f}" if not (t or rr) or c["loss"] is None
+                        else f"{c['iou']:.2f} (−{c['loss']:.2f})" if c["loss"] >= 0 else f"{c['iou']:.2f} (+{-c['loss']:.2f})")
+        lines.append("| " + " | ".join([scene, depth, f"{k:g}"] + vals) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("work", type=Path)
+    ap.add_argument("--seeds", default="2,3,4", help="scene seeds, comma-separated (default 2,3,4)")
+    ap.add_argument("--house", action="store_true", help="houses (synth --house --frames 150) instead of homes")
+    ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--spill", default="0,0.3", help="spill thinning values to export with (0 = off)")
+    ap.add_argument("--jitters", default=",".join(f"{t}:{r}" for t, r in JITTERS),
+                    help="sigma_t_metres:sigma_r_degrees pairs; 0:0 (true poses) must be first")
+    ap.add_argument("--jitter-seed", type=int, default=0, help="seed of traj perturb (default 0)")
+    a = ap.parse_args(argv)
+    jitters = tuple(tuple(float(v) for v in j.split(":")) for j in a.jitters.split(","))
+    if jitters[0] != (0.0, 0.0):
+        ap.error("--jitters must start with 0:0 (the true-pose map every loss is measured against)")
+    spills = [float(v) for v in a.spill.split(",")]
+    a.work.mkdir(parents=True, exist_ok=True)
+
+    def show(rows):
+        for r in rows:
+            print(" ".join(f"{k}={v}" for k, v in r.items()), flush=True)
+
+    try:
+        rows = run(a.work, [int(s) for s in a.seeds.split(",")], a.house, a.width, spills, jitters, a.jitter_seed, show)
+    except subprocess.CalledProcessError as e:
+        sys.exit(f"error: {' '.join(map(str, e.cmd[2:]))} failed: {e.stderr.decode(errors='replace').strip()}")
+    with open(a.work / "jitter.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    (a.work / "jitter.md").write_text(markdown(rows, jitters))
+    print(markdown(rows, jitters))
+
+
+if __name__ == "__main__":
+    main()
