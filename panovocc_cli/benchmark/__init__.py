@@ -14,3 +14,11 @@
 
 Libraries here print nothing except :mod:`.runner` (progress) and :mod:`.run` (files, summary).
 """
+
+import sys
+
+
+def panovocc_command(*args) -> list:
+    """The argv that runs ``panovocc ARGS...`` in a process of its own with this interpreter (the benchmarks
+    time and run the commands as a user does)."""
+    return [sys.executable, "-m", "panovocc_cli", *map(str, args)]

@@ -25,12 +25,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+from . import panovocc_command
+
 JITTERS = ((0.0, 0.0), (0.005, 0.05), (0.01, 0.1), (0.02, 0.2))  # (sigma_t metres, sigma_r degrees)
 DEPTHS = ("clean", "realistic")
 
 
 def _panovocc(*args) -> None:
-    subprocess.run([sys.executable, "-m", "panovocc_cli", *map(str, args)], check=True,
+    subprocess.run(panovocc_command(*args), check=True,
                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 

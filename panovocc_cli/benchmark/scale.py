@@ -32,17 +32,16 @@ import csv
 import json
 import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from . import panovocc_command
+
 HOUR_FRAMES = 36_000  # an hour at 10 Hz
 
 
-def _panovocc(*args: str) -> list:
-    return [sys.executable, "-m", "panovocc_cli", *args]
 
 
 def timed(cmd: list, log: Path) -> dict:
@@ -138,22 +137,22 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
         args = ["synth", str(sc), f"--{scene}", "--seed", str(seed), "--overwrite"]
         if frames:
             args += ["--frames", str(frames)]
-        timed(_panovocc(*args), logs / "synth.log")
+        timed(panovocc_command(*args), logs / "synth.log")
     if not (seq / "meta.json").is_file():
-        timed(_panovocc("render", str(sc), str(seq), "--width", str(width), "--seed", str(seed), "--overwrite"),
+        timed(panovocc_command("render", str(sc), str(seq), "--width", str(width), "--seed", str(seed), "--overwrite"),
               logs / "render.log")
     if not gt.is_file():
-        timed(_panovocc("gt", str(sc), str(gt), "--overwrite"), logs / "gt.log")
+        timed(panovocc_command("gt", str(sc), str(gt), "--overwrite"), logs / "gt.log")
     times = work / "frames.csv"
-    mrun = timed(_panovocc("map", str(seq), str(mp), "--frame-times", str(times), "--overwrite"), logs / "map.log")
+    mrun = timed(panovocc_command("map", str(seq), str(mp), "--frame-times", str(times), "--overwrite"), logs / "map.log")
     fc = frame_costs(times)
     mem = memory_figures(mp)
-    ev = json.loads(subprocess.run(_panovocc("eval", str(mp / "prediction.npz"), str(gt), "--classes", "eval12",
+    ev = json.loads(subprocess.run(panovocc_command("eval", str(mp / "prediction.npz"), str(gt), "--classes", "eval12",
                                              "--json"), capture_output=True, text=True, check=True).stdout)
     poses = read_poses(mp / "poses.txt")
     k = min(revise, len(poses))
     write_poses(work / "poses_revised.txt", moved_tail(poses, k))
-    rrun = timed(_panovocc("revise", str(mp), str(work / "poses_revised.txt")), logs / "revise.log")
+    rrun = timed(panovocc_command("revise", str(mp), str(work / "poses_revised.txt")), logs / "revise.log")
     integrate_s = float(fc["dt"][len(poses) - k:].sum())
     integrate_cpu_s = float(fc["cpu"][len(poses) - k:].sum())
     peak = mrun["peak_rss_bytes"]

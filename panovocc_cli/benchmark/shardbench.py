@@ -24,19 +24,18 @@ import time
 from pathlib import Path
 
 from ..errors import PanovoccError
+from . import panovocc_command
 
 
-def _panovocc(*args) -> list:
-    return [sys.executable, "-m", "panovocc_cli", *map(str, args)]
 
 
 def prepare(work: Path, frames: int, width: int, seed: int = 0) -> Path:
     """The benchmark's sequence (made once): a home of ``seed`` with ``frames`` poses at ``width``."""
     sc, seq = work / "scene", work / "seq"
     if not (sc / "traj.txt").is_file():
-        subprocess.run(_panovocc("synth", sc, "--seed", seed, "--frames", frames, "--overwrite"), check=True)
+        subprocess.run(panovocc_command("synth", sc, "--seed", seed, "--frames", frames, "--overwrite"), check=True)
     if not (seq / "meta.json").is_file():
-        subprocess.run(_panovocc("render", sc, seq, "--width", width, "--seed", seed, "--overwrite"), check=True)
+        subprocess.run(panovocc_command("render", sc, seq, "--width", width, "--seed", seed, "--overwrite"), check=True)
     return seq
 
 
