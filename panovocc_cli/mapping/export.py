@@ -171,7 +171,7 @@ def key_lookup(keys: np.ndarray, channels):
             return {n: np.zeros((len(q), 1), np.int64) for n in GEOMETRY_NAMES}
         pos = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
         found = keys[pos] == q
-        c = channels.at(pos, GEOMETRY_NAMES) if hasattr(channels, "at") else {n: channels[n][pos] for n in GEOMETRY_NAMES}
+        c = _geometry(channels, pos)
         return {n: np.where(found[:, None], np.asarray(c[n], np.int64), 0) for n in GEOMETRY_NAMES}
 
     return lookup
@@ -208,9 +208,12 @@ def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=
                            lookup=key_lookup(keys, channels) if p.spill > 0 else None)
 
 
-def _geometry(channels, sl: slice) -> dict:
-    return channels.at(np.arange(sl.start, sl.stop), GEOMETRY_NAMES) if hasattr(channels, "at") else \
-        {k: channels[k][sl] for k in GEOMETRY_NAMES}
+def _geometry(channels, rows) -> dict:
+    """A, N, F, O at ``rows`` (a slice, or positions) of a dict of (n, w) arrays or a reader with
+    ``at(positions, names)``."""
+    if hasattr(channels, "at"):
+        return channels.at(np.arange(rows.start, rows.stop) if isinstance(rows, slice) else rows, GEOMETRY_NAMES)
+    return {k: channels[k][rows] for k in GEOMETRY_NAMES}
 
 
 def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=("empty",), lookup=None):
