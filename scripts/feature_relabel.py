@@ -13,7 +13,8 @@ default noise, seed 0)::
 Both maps measure every second pixel of every second row (``--semantic-stride 2``, the default at 1024x512;
 at 512x256 the default is 1): a quarter of the segmenter's pixels, to keep the run short on a shared machine.
 
-Usage: ``python scripts/feature_relabel.py WORKDIR --seeds 0 1 2 [--temperature T --min-sim M]``; prints one
+Usage: ``python scripts/feature_relabel.py WORKDIR --seeds 0 1 2 [--temperature T --min-sim M --background B
+--fold F --margin M --tag _X]``; prints one
 row per seed and the mean (markdown), and each command it ran. Steps whose output exists are not redone.
 The one-word map (``--vocab object``) has no class knowledge: every pixel of it carries confidence 1 and
 its only semantic content is the fused feature. Time per frame of both maps is read from ``--frame-times``.
@@ -53,6 +54,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--temperature", type=float, default=None, help="relabel --feature-temperature")
     ap.add_argument("--min-sim", type=float, default=None, help="relabel --min-feature-similarity")
+    ap.add_argument("--background", default=None, help="relabel --background")
+    ap.add_argument("--fold", type=float, default=None, help="relabel --fold-similarity")
+    ap.add_argument("--margin", type=float, default=None, help="relabel --feature-margin")
     ap.add_argument("--tag", default="", help="suffix of the relabel output (several settings side by side)")
     a = ap.parse_args()
     w = a.work
@@ -82,6 +86,9 @@ def main() -> None:
             extra += ["--feature-temperature", a.temperature]
         if a.min_sim is not None:
             extra += ["--min-feature-similarity", a.min_sim]
+        for flag, v in (("--background", a.background), ("--fold-similarity", a.fold), ("--feature-margin", a.margin)):
+            if v is not None:
+                extra += [flag, v]
         if not out.exists():
             run(["relabel", feat_map, out, "--vocab", ",".join(words)] + extra, log)
         ev = {}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 
 from panovocc_cli.geometry.erp import ray_directions
@@ -94,3 +96,26 @@ def write_labelled_room(seq, width: int, n: int):
     write_meta(seq, SequenceMeta(width=width, height=width // 2, frames=n, class_names=CLASS_NAMES))
     write_sequence_poses(seq, poses)
     return seq
+
+
+@contextmanager
+def room_feature_map(root, encoder, width: int = 128, frames: int = 6):
+    """The furnished room at ``width`` x ``width / 2``, ``frames`` frames, mapped with the one-word vocabulary
+    ``object`` and ``--features`` (D = 64) into ``root / "m"``: the room's words are known to the map only through
+    its features. The simulated segmenter's text model is replaced by ``encoder()`` (no torch) until the context
+    ends. Yields (map folder, sequence folder)."""
+    import pytest
+
+    from panovocc_cli.mapping.config import SemanticParams
+    from panovocc_cli.mapping.pipeline import MapConfig, run_map
+    from panovocc_cli.semantics.simulated import SimulatedSegmenter
+
+    seq = write_labelled_room(root / "room", width, frames)
+    mp = pytest.MonkeyPatch()
+    mp.setattr(SimulatedSegmenter, "text_encoder", lambda self: encoder())
+    try:
+        run_map(MapConfig(seq=str(seq), out=str(root / "m"), checkpoint_every=0,
+                          semantic=SemanticParams(vocab="object", features=True, feature_dim=64)), progress=False)
+        yield root / "m", seq
+    finally:
+        mp.undo()

@@ -15,7 +15,8 @@ import typer
 
 from ..config import option, validate_config
 from ..errors import PanovoccError, printable
-from ..semantics.features import DEFAULT_FEATURE_MIN_SIMILARITY, DEFAULT_FEATURE_TEMPERATURE
+from ..semantics.features import (DEFAULT_FEATURE_MARGIN_254, DEFAULT_FEATURE_MIN_SIMILARITY,
+                                  DEFAULT_FEATURE_TEMPERATURE, DEFAULT_FOLD_SIMILARITY)
 from ..semantics.query import (DEFAULT_MARGIN, DEFAULT_MIN_SIMILARITY, DEFAULT_RELABEL_SIMILARITY,
                                DEFAULT_TEMPERATURE)
 from ._app import app
@@ -77,6 +78,15 @@ class RelabelConfig:
     feature_temperature: float = option(DEFAULT_FEATURE_TEMPERATURE, min=1e-3, max=10.0,
                                         help="By features: softmax temperature (cosine units) of a voxel's "
                                              "distribution over the words.")
+    background: str = option("scannet200", help="By features: the words a voxel may be instead of the asked ones, "
+                             "which leave it occupied without a class (254): scannet200 (ScanNet200's 200 class names "
+                             "and LERF's canonical phrases), none, or comma-separated words.")
+    fold_similarity: float = option(DEFAULT_FOLD_SIMILARITY, min=-1.0, max=1.0, help="By features: text cosine a "
+                                    "background word needs to its most similar asked word to count for it (a "
+                                    "synonym: 'sofa' for 'couch').")
+    feature_margin: float = option(DEFAULT_FEATURE_MARGIN_254, min=-2.0, max=2.0, help="By features: the cosine "
+                                   "an asked word needs over the best other background word (larger: more voxels "
+                                   "unclassed).")
     overwrite: bool = option(False, help="Replace an existing NEW.npz (never an input).")
 
 
@@ -212,9 +222,10 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     ``sources`` per new word, ``classed`` voxels per new word, ``unclassed`` occupied voxels without one.
 
     By features (``cfg.by``; a map made with ``--features``): the evidence is written from each voxel's fused
-    feature instead (:func:`semantics.features.feature_distribution`: a softmax over its cosines to the words,
-    the weight of a voxel whose best cosine is below ``min_feature_similarity`` on the extra column), so any
-    words are reached; then the same export. ``by_features`` in the summary says which route was taken.
+    feature instead (:func:`semantics.features.feature_distribution`: a softmax over its cosines to the words and
+    to the ``background`` words, those that are no synonym of a word (``fold_similarity``) scoring for the extra
+    column, plus ``feature_margin``; a voxel whose best cosine is below ``min_feature_similarity`` all on the
+    extra column), so any words are reached; then the same export. ``by_features`` in the summary says which route was taken.
     """
     import dataclasses
 
@@ -269,7 +280,9 @@ def _relabel_by_features(cfg: RelabelConfig, mapper, new, encode):
     from ..mapping.contributors import distribution_evidence
     from ..mapping.export import export_memory
     from ..mapquery import feature_text_encoder, needs_features
-    from ..semantics.features import feature_distribution, project, projection
+    from ..classes import canonical_name
+    from ..semantics.background import background_words
+    from ..semantics.features import feature_distribution, fold_targets, project, projection
     from ..semantics.query import _words
 
     if not mapper.config.feature_dim:
@@ -281,17 +294,25 @@ def _relabel_by_features(cfg: RelabelConfig, mapper, new, encode):
     if encode is None:
         encode = feature_text_encoder(cfg.map_dir)
     words = [w for w, _ in new]
-    e = np.asarray(encode([_words(w) for w in words]), np.float64)
-    T = project(e, projection(e.shape[1], mapper.config.feature_dim))
+    bg = list(background_words(cfg.background))
+    e = np.asarray(encode([_words(w) for w in words] + bg), np.float64)
+    fold = fold_targets(e[:len(words)], e[len(words):], cfg.fold_similarity)
+    P = projection(e.shape[1], mapper.config.feature_dim)
+    T, B = project(e[:len(words)], P), project(e[len(words):], P)
     keys, ch = mapper.memory.nonzero()
     ch = dict(ch)
     p, _ = feature_distribution(ch["Z"], T, temperature=cfg.feature_temperature,
-                                min_similarity=cfg.min_feature_similarity)
+                                min_similarity=cfg.min_feature_similarity, background=B, fold=fold,
+                                margin=cfg.feature_margin)
     ch["E"] = distribution_evidence(p, ch["S"])
     mcfg = dataclasses.replace(mapper.config, vocab=words + [UNMATCHED])
     ex = export_memory(keys, ch, mcfg.geometry.voxel_size, mcfg.occupancy, mcfg.vocab, mcfg,
                        origin_index=mcfg.origin_index())
-    return ex, {w: [("features", 1.0)] for w in words}
+    sources = {w: [("features", 1.0)] for w in words}
+    for k, (b, j) in enumerate(zip(bg, fold)):  # the background words that count for an asked word (bar itself)
+        if j >= 0 and canonical_name(b) != words[j]:
+            sources[words[j]].append((b, round(float(e[len(words) + k] @ e[j]), 4)))
+    return ex, sources
 
 
 def _write_relabelled(cfg: RelabelConfig, ex, words, sources, config_path, by_features: bool) -> dict:

@@ -12,10 +12,12 @@ weighted mean feature in 1/(64 * 127) steps.
 
 Asking such a map: a text is embedded by the encoder that matches the map's features, projected by the
 same matrix (:func:`project`) and compared by cosine with each voxel's ``Z`` (:func:`feature_scores`).
-Relabelling to any vocabulary (:func:`feature_distribution`): each voxel's cosines to the words give a
-softmax distribution, written back in the form of the class evidence ``E`` (integer steps times the voxel's
-weight: :func:`panovocc_cli.mapping.contributors.distribution_evidence`), so the map's own export (GSC, nearest-evidence transfer) labels the voxels; a voxel whose best
-cosine is below ``min_similarity`` puts its weight on one more column, exported as occupied-unclassed (254).
+Relabelling to any vocabulary (:func:`feature_distribution`): each voxel is classified over the asked words and
+a background vocabulary (:mod:`.background`; background words that are synonyms of an asked word count for it,
+:func:`fold_targets`), and the softmax of its scores over the words plus one unclassed column is written back in
+the form of the class evidence ``E`` (integer steps times the voxel's weight:
+:func:`panovocc_cli.mapping.contributors.distribution_evidence`), so the map's own export (GSC, nearest-evidence
+transfer) labels the voxels; the voxels the unclassed column wins are occupied-unclassed (254).
 """
 
 from __future__ import annotations
@@ -32,6 +34,10 @@ MAX_FEATURE_DIM = 1024
 #: takes no word (occupied-unclassed, 254). Chosen on homes of seeds 100-101 (docs/semantics.md).
 DEFAULT_FEATURE_TEMPERATURE = 0.1
 DEFAULT_FEATURE_MIN_SIMILARITY = 0.3
+#: relabel by features against background words (:mod:`.background`): the text cosine a background word needs
+#: to an asked word to count for it, and the cosine margin an asked word needs over the other background words.
+DEFAULT_FOLD_SIMILARITY = 0.65
+DEFAULT_FEATURE_MARGIN_254 = -0.03
 #: query by features: voxels within this cosine of the best voxel's and above ``min_similarity`` match.
 DEFAULT_FEATURE_MARGIN = 0.1
 
@@ -91,28 +97,68 @@ def feature_scores(Z: np.ndarray, t: np.ndarray, *, unit: bool = False) -> np.nd
     return s
 
 
+def fold_targets(T: np.ndarray, B: np.ndarray, min_similarity: float = DEFAULT_FOLD_SIMILARITY) -> np.ndarray:
+    """Which asked word each background word counts for.
+
+    T : (C, D) the asked words' unit text embeddings; B : (K, D) the background words'; min_similarity : the
+    text cosine a background word needs to its most similar asked word to count for it (a synonym: ``sofa``
+    for ``couch``, or the word itself)
+
+    Returns (K,) int64: the asked word's index, or -1 (the background word counts for occupied-unclassed).
+    """
+    B = np.asarray(B, np.float64).reshape(-1, np.shape(T)[1])
+    if not len(B) or not len(T):
+        return np.full(len(B), -1, np.int64)
+    sim = B @ np.asarray(T, np.float64).T
+    j = sim.argmax(axis=1)
+    return np.where(sim[np.arange(len(B)), j] >= float(min_similarity), j, -1).astype(np.int64)
+
+
 def feature_distribution(Z: np.ndarray, T: np.ndarray, *, temperature: float = DEFAULT_FEATURE_TEMPERATURE,
-                         min_similarity: float = DEFAULT_FEATURE_MIN_SIMILARITY) -> tuple[np.ndarray, np.ndarray]:
+                         min_similarity: float = DEFAULT_FEATURE_MIN_SIMILARITY, background: np.ndarray | None = None,
+                         fold: np.ndarray | None = None,
+                         margin: float = DEFAULT_FEATURE_MARGIN_254) -> tuple[np.ndarray, np.ndarray]:
     """Each voxel's distribution over a new vocabulary from its stored feature.
+
+    A voxel's score for word c is its cosine to c, or to a background word that counts for c (``fold``),
+    whichever is higher; the extra column's score is its best cosine to a background word that counts for
+    none, plus ``margin``. The distribution is the softmax of these C + 1 scores at ``temperature``; a voxel
+    whose best word cosine is below ``min_similarity`` (or without a feature) puts all its mass on the extra
+    column. Without background words the extra column takes only those voxels.
 
     Parameters
     ----------
     Z : (n, D) stored features (any common scale); T : (C, D) the words' projected unit text embeddings
     temperature : softmax temperature over the cosines; min_similarity : best cosine a voxel needs to take a word
+    background : (K, D) the background words' projected unit text embeddings, or None
+    fold : (K,) int64, :func:`fold_targets` (the word each background word counts for, -1: none)
+    margin : cosine added to the best background word's score (the evidence a word needs over the background)
 
     Returns
     -------
-    p : (n, C + 1) float64, the softmax over the words' cosines, or all mass on the last column when the best
-        cosine is below ``min_similarity`` (or the voxel has no feature); rows sum to 1 (the class evidence of
-        a relabelled map: :func:`panovocc_cli.mapping.contributors.distribution_evidence`)
-    best : (n,) float64, each voxel's best cosine (-1: no feature)
+    p : (n, C + 1) float64, rows sum to 1 (the class evidence of a relabelled map:
+        :func:`panovocc_cli.mapping.contributors.distribution_evidence`); the last column is occupied-unclassed
+    best : (n,) float64, each voxel's best word cosine (-1: no feature)
     """
     U = unit_rows(Z)
     cos = U @ np.asarray(T, np.float64).T
     has = U.any(axis=1)
     best = np.where(has, cos.max(axis=1) if cos.shape[1] else -1.0, -1.0)
-    z = (cos - cos.max(axis=1, keepdims=True)) / float(temperature)
+    other = np.full(len(U), -np.inf)
+    if background is not None and len(background):
+        cb = U @ np.asarray(background, np.float64).T
+        fold = np.asarray(fold, np.int64)
+        for c in range(cos.shape[1]):
+            mine = fold == c
+            if mine.any():
+                cos[:, c] = np.maximum(cos[:, c], cb[:, mine].max(axis=1))
+        if (fold < 0).any():
+            other = cb[:, fold < 0].max(axis=1) + float(margin)
+    s = np.concatenate([cos, other[:, None]], axis=1)
+    z = (s - s.max(axis=1, keepdims=True)) / float(temperature)
     p = np.exp(z)
     p /= p.sum(axis=1, keepdims=True)
     off = best < float(min_similarity)
-    return np.concatenate([np.where(off[:, None], 0.0, p), off[:, None].astype(np.float64)], axis=1), best
+    p[off] = 0.0
+    p[off, -1] = 1.0
+    return p, best

@@ -203,16 +203,10 @@ def test_simulated_embedding_mode_is_seeded_and_near_the_true_class():
 def qmap(tmp_path_factory):
     """The furnished room at 128x64, 6 frames, mapped with a one-word vocabulary and --features: the words
     of the room are known to the map only through its features. The text model is :func:`fake_encoder`."""
-    from panovocc_cli.semantics.simulated import SimulatedSegmenter
+    from semantics_helpers import room_feature_map
 
-    root = tmp_path_factory.mktemp("featq")
-    seq = write_labelled_room(root / "room", 128, 6)
-    mp = pytest.MonkeyPatch()
-    mp.setattr(SimulatedSegmenter, "text_encoder", lambda self: fake_encoder())
-    run_map(MapConfig(seq=str(seq), out=str(root / "m"), checkpoint_every=0,
-                      semantic=SemanticParams(vocab="object", features=True, feature_dim=64)), progress=False)
-    yield root / "m", seq
-    mp.undo()
+    with room_feature_map(tmp_path_factory.mktemp("featq"), fake_encoder) as m:
+        yield m
 
 
 def _in_box(pts, name, slack=0.2):
