@@ -2,8 +2,8 @@
 --vocab couch,bed`` on the no-vocabulary feature maps of scripts/feature_relabel.py (``WORKDIR/featK``, homes of 3
 rooms), counted and scored against the ground truth.
 
-For each seed K and each setting, ``run_relabel`` (what ``panovocc relabel`` runs) writes ``WORKDIR/cover{K}_{tag}.npz``;
-every occupied voxel of it is looked up in the ground-truth grid ``WORKDIR/gK.npz`` at its centre. Per word: the
+For each seed K and each setting, ``run_relabel`` (what ``panovocc relabel`` runs) writes
+``WORKDIR/cover{K}_{tag}.npz``; every occupied voxel of it is looked up in the ground-truth grid ``WORKDIR/gK.npz`` at its centre. Per word: the
 voxels labelled with it, precision (share of them whose ground-truth class is the word's class: couch -> sofa,
 bed -> bed) and recall (share of the occupied voxels of that class that keep the word); and the voxels left
 occupied-unclassed (254).

@@ -83,10 +83,11 @@ class RelabelConfig:
                              "and LERF's canonical phrases), none, or comma-separated words.")
     fold_similarity: float = option(DEFAULT_FOLD_SIMILARITY, min=-1.0, max=1.0, help="By features: text cosine a "
                                     "background word needs to its most similar asked word to count for it (a "
-                                    "synonym: 'sofa' for 'couch').")
+                                    "synonym: 'sofa chair' for 'couch').")
     feature_margin: float = option(DEFAULT_FEATURE_MARGIN_254, min=-2.0, max=2.0, help="By features: the cosine "
-                                   "an asked word needs over the best other background word (larger: more voxels "
-                                   "unclassed).")
+                                   "an asked word needs over the best background word that counts for no asked word "
+                                   "(negative: the word keeps a voxel unless such a word is closer by more than "
+                                   "that; larger: more voxels unclassed).")
     overwrite: bool = option(False, help="Replace an existing NEW.npz (never an input).")
 
 
@@ -225,7 +226,8 @@ def run_relabel(cfg: RelabelConfig, encode=None) -> dict:
     feature instead (:func:`semantics.features.feature_distribution`: a softmax over its cosines to the words and
     to the ``background`` words, those that are no synonym of a word (``fold_similarity``) scoring for the extra
     column, plus ``feature_margin``; a voxel whose best cosine is below ``min_feature_similarity`` all on the
-    extra column), so any words are reached; then the same export. ``by_features`` in the summary says which route was taken.
+    extra column), so any words are reached; then the same export. ``by_features`` in the summary says which
+    route was taken.
     """
     import dataclasses
 
@@ -277,10 +279,10 @@ def _relabel_by_features(cfg: RelabelConfig, mapper, new, encode):
 
     import numpy as np
 
+    from ..classes import canonical_name
     from ..mapping.contributors import distribution_evidence
     from ..mapping.export import export_memory
     from ..mapquery import feature_text_encoder, needs_features
-    from ..classes import canonical_name
     from ..semantics.background import background_words
     from ..semantics.features import feature_distribution, fold_targets, project, projection
     from ..semantics.query import _words
