@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
@@ -266,17 +267,38 @@ def _diffuse_sorted(idx, p, S, g, normals, colors, params: GSCParams) -> np.ndar
     live = denom > 0
     inv = np.where(live, 1.0 / np.where(live, denom, 1.0), 0.0).astype(np.float32)[:, None]
     anchor = rho[:, None] * p
-    q = p.copy()
-    live = np.broadcast_to(live[:, None], q.shape)
-    for _ in range(int(params.iterations)):
-        # (anchor + lam * (W_bar q)) * inv, in place: the same float32 operations in the same order
-        nxt = Wb @ q
-        nxt *= lam
-        nxt += anchor
-        nxt *= inv
-        np.copyto(q, nxt, where=live)
-        del nxt
-    return q
+    return _iterate(Wb.indptr, Wb.indices, Wb.data, p.copy(), np.ascontiguousarray(anchor, np.float32),
+                    np.ascontiguousarray(inv[:, 0]), live, lam, int(params.iterations))
+
+
+@nb.njit(cache=True)
+def _iterate(indptr, indices, data, q, anchor, inv, live, lam, iterations):
+    """``iterations`` steps of ``q <- (anchor + lam (W_bar q)) inv`` on the live rows (the others keep q), W_bar
+    a CSR matrix (indptr, indices, data) float32: each step in one pass over the rows, into a second buffer.
+    The same float32 operations in the same order as scipy's CSR product (``Wb @ q``: each row's entries
+    added in stored order to a row of zeros) followed by ``*= lam``, ``+= anchor``, ``*= inv``, so the result
+    is the same bit for bit (tests/semantics/test_gsc.py); the product's (n, C) temporary and the three
+    passes over it are gone."""
+    n, c = q.shape
+    a = q
+    b = np.empty_like(q)
+    for _ in range(iterations):
+        for i in range(n):
+            if live[i]:
+                for k in range(c):
+                    b[i, k] = np.float32(0.0)
+                for jj in range(indptr[i], indptr[i + 1]):
+                    w = data[jj]
+                    j = indices[jj]
+                    for k in range(c):
+                        b[i, k] += w * a[j, k]
+                for k in range(c):
+                    b[i, k] = (b[i, k] * lam + anchor[i, k]) * inv[i]
+            else:
+                for k in range(c):
+                    b[i, k] = a[i, k]
+        a, b = b, a
+    return a
 
 
 def transfer_offsets(max_dist_vox: float) -> np.ndarray:
