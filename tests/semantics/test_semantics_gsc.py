@@ -190,7 +190,7 @@ def test_compiled_iterations_equal_the_scipy_product_bit_for_bit():
     ``+= anchor``, ``*= inv``, copied into the live rows), with rows of no edges, dead rows and zero weights."""
     import scipy.sparse as sp
 
-    from panovocc_cli.semantics.gsc import _iterate
+    from panovocc_cli.semantics.gsc import _iterate, iterate_scipy
 
     rng = np.random.default_rng(7)
     n, c = 3000, 12
@@ -203,13 +203,7 @@ def test_compiled_iterations_equal_the_scipy_product_bit_for_bit():
     inv = np.where(rng.random(n) < 0.1, 0.0, rng.random(n)).astype(np.float32)
     live = rng.random(n) < 0.9
     lam = np.float32(8.0)
-    ref = p.copy()
-    for _ in range(20):
-        nxt = W @ ref
-        nxt *= lam
-        nxt += anchor
-        nxt *= inv[:, None]
-        np.copyto(ref, nxt, where=np.broadcast_to(live[:, None], ref.shape))
+    ref = iterate_scipy(W.indptr, W.indices, W.data, p.copy(), anchor, inv, live, lam, 20)
     out = _iterate(W.indptr, W.indices, W.data, p.copy(), anchor, inv, live, lam, 20)
     assert out.dtype == np.float32
     assert np.array_equal(out.view(np.uint32), ref.view(np.uint32))
