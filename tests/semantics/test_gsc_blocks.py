@@ -134,3 +134,15 @@ def test_transfer_at_the_lattice_edge_stays_inside():
     e = KEY_RANGE - 1
     idx = np.array([[e, 0, 0], [-e, 0, 0]])
     assert nearest_evidence_transfer(idx, np.array([-9, 7]), np.array([False, True]), 2.0).tolist() == [-1, 7]
+
+
+def test_unique_pairs_equal_numpy_rows():
+    """A slab's cubes (gsc._unique_pairs) are np.unique's rows, in the same order, from one int64 sort."""
+    from panovocc_cli.semantics.gsc import _unique_pairs
+
+    rng = np.random.default_rng(5)
+    for lo, hi, n in ((-5, 5, 3000), (-2 ** 17, 2 ** 17, 50), (0, 1, 10), (3, 9, 1)):
+        a, b = rng.integers(lo, hi, n), rng.integers(lo, hi, n)
+        got = _unique_pairs(a, b)
+        assert got.dtype == np.int64 and np.array_equal(got, np.unique(np.stack([a, b], 1), axis=0))
+    assert _unique_pairs(np.zeros(0, np.int64), np.zeros(0, np.int64)).shape == (0, 2)
