@@ -320,9 +320,10 @@ def plane_voxels(n, c, lo, hi):
 @pytest.mark.parametrize("slope", [0.3, 0.45])
 def test_a_tilted_surface_keeps_every_voxel_it_passes_through(slope, monkeypatch):
     """A floor tilted about the y axis (z = slope x - 1.13; 17 and 24 degrees) crosses one or two voxels of each
-    z column: the consensus keeps them (spans, module docstring 2b) but for slivers the plane cuts less than
-    SPAN_MARGIN deep (measured: 10 of 1170, 7 of 1290), and nothing else; one voxel a column missed 23 % / 30 %
-    of them (SPAN_MAX = 0: 270, 390)."""
+    z column: the consensus keeps every one (spans, module docstring 2b; with the former SPAN_MARGIN of 0.02
+    voxels the slivers the plane cuts less than that deep were lost: 10 of 1170, 7 of 1290) and at most one
+    voxel more (measured: 0 and 1, a column at the plane's rim); one voxel a column missed 23 % / 30 % of them
+    (SPAN_MAX = 0: 270, 390)."""
     from panovocc_cli.gt import consensus
 
     n = np.array([-slope, 0.0, 1.0])
@@ -333,7 +334,7 @@ def test_a_tilted_surface_keeps_every_voxel_it_passes_through(slope, monkeypatch
         return {v for v in occupied_set(g) if all(-1.2 <= x * H and (x + 1) * H <= 1.2 for x in v[:2])}
 
     got = inner(accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16))
-    assert got <= truth and len(truth - got) <= 0.01 * len(truth)
+    assert truth <= got and len(got - truth) <= 1
     monkeypatch.setattr(consensus, "SPAN_MAX", 0)
     one = inner(accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16))
     assert one <= truth and len(truth - one) >= 0.2 * len(truth)
