@@ -26,9 +26,9 @@ benchmark must not be built by the method it ranks). On the global lattice of vo
    one voxel of its own position (a side with none mirrors the opposite side; none either way: flat that
    way); the reaches of the two lateral axes add up (the footprint's corners). A mode whose points seen
    from above lie higher than those seen from below is a slab seen from both sides: it spans from its lower
-   face's position to its upper face's. The voxels the span reaches at least ``SPAN_MARGIN`` voxels into,
-   other than the mode's own (at most ``SPAN_MAX`` either side), are *span voxels* of that mode (the margin:
-   a column where two surfaces meet has its mode pulled a few millimetres off by the other's points).
+   face's position to its upper face's. The voxels the span reaches into by more than ``SPAN_MARGIN``
+   voxels (0: any depth at all; swept on seeds 10 and 11, docs/gt.md), other than the mode's own (at most
+   ``SPAN_MAX`` either side), are *span voxels* of that mode.
 3. **Every ray's verdict (pass 2, every frame).** A point *supports* the surface whose consensus position
    is nearest along that surface's axis within ``tol(r) = surface_tol + surface_tol_r2 r²`` (r its range,
    metres): range noise grows with range. A ray (one every ``max(1, W // 512)`` pixels on both axes) is
@@ -69,7 +69,7 @@ DIP = 0.5  # two modes are one surface unless the density between them dips belo
 POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
 KERNEL_R2 = 1.5  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
 SPAN_MAX = 1  # a surface's span reaches at most this many voxels either side of its mode's voxel (2b)
-SPAN_MARGIN = 0.02  # voxels: a span counts a neighbouring voxel when it reaches this far into it (2b)
+SPAN_MARGIN = 0.0  # voxels: a span counts a neighbouring voxel when it reaches more than this far into it (2b)
 # (3 axes x FINE bins x (2 sides x (int32 count + int64 offset) + int64 density)) + 3 float64 surface positions
 # + 3 x 2 float64 positions of the two sides (while settling) + 6 int32 counts/stamps + bools
 BYTES_PER_VOXEL = 3 * FINE * 32 + 3 * 8 + 3 * 2 * 8 + 6 * 4 + 2

@@ -73,6 +73,11 @@ def shell_index(lo=LO, hi=HI):
     return {tuple(x) for x in ii[on].tolist()}, a, b
 
 
+def in_corner(v, a, b):
+    """Whether lattice index ``v`` is the voxel diagonally inside a corner of the index box [a, b]."""
+    return all(v[d] in (a[d] + 1, b[d] - 1) for d in range(3))
+
+
 @pytest.fixture(scope="module")
 def box_acc():
     return accumulate(box_frames())
@@ -87,15 +92,17 @@ def test_box_occupancy_is_exactly_the_walls_and_inside_is_free(box_acc):
     g = box_acc.grid(NAMES, 0.16)
     shell, a, b = shell_index()
     occ = occupied_set(g)
-    assert occ <= shell  # no voxel off the walls
-    # and every voxel a wall passes through, but for at most two where the floor (1 cm into its voxel,
-    # z = -1.21) meets the wall x = -1.97: a sliver narrower than the normal's two-pixel stencil
-    missed = shell - occ
-    assert len(missed) <= 2 and all(i == a[0] and k == a[2] for i, _, k in missed)
+    # no voxel off the walls but at most one next to a corner, where three surfaces' points pull each other's
+    # modes a few millimetres and a span (margin 0, module docstring 2b) reaches into the voxel inside
+    # (measured: 1, at the corner x = -1.97, y = 1.47, z = -1.21)
+    assert len(occ - shell) <= 1 and all(in_corner(v, a, b) for v in occ - shell)
+    # and every voxel a wall passes through, even where the floor (1 cm into its voxel, z = -1.21) meets the
+    # wall x = -1.97 (the span margin of 0.02 voxels lost up to two of them)
+    assert shell <= occ
     # lattice: origin is a voxel centre of the global lattice, the box's walls in the grid
     assert np.allclose(g.origin / H - 0.5, np.round(g.origin / H - 0.5))
     inner = g.labels[tuple(slice(a[d] + 1 - g.index0[d], b[d] - g.index0[d]) for d in range(3))]
-    assert (inner == 0).mean() > 0.99 and not ((inner > 0) & (inner < 255)).any()
+    assert (inner == 0).mean() > 0.99 and ((inner > 0) & (inner < 255)).sum() <= 1  # the corner voxel above
     assert g.class_names == ["empty", "floor", "ceiling", "wall"]
 
 
@@ -161,9 +168,11 @@ def test_seen_through_drops_surface_noise_in_front_of_the_walls():
     frames = box_frames()
     d = frames[1][0] * np.float32(0.85)
     frames += [(d, frames[1][1]), (d.copy(), frames[1][1])]
-    shell, _, _ = shell_index()
-    assert not occupied_set(accumulate(frames, min_hit_ratio=0.0).grid(NAMES, 0.16)) <= shell
-    assert occupied_set(accumulate(frames, min_hit_ratio=0.5).grid(NAMES, 0.16)) <= shell
+    shell, a, b = shell_index()
+    loose = occupied_set(accumulate(frames, min_hit_ratio=0.0).grid(NAMES, 0.16)) - shell
+    assert not all(in_corner(v, a, b) for v in loose)
+    strict = occupied_set(accumulate(frames, min_hit_ratio=0.5).grid(NAMES, 0.16)) - shell
+    assert len(strict) <= 1 and all(in_corner(v, a, b) for v in strict)
 
 
 def test_floor_on_a_voxel_face_gives_one_layer():
@@ -320,9 +329,10 @@ def plane_voxels(n, c, lo, hi):
 @pytest.mark.parametrize("slope", [0.3, 0.45])
 def test_a_tilted_surface_keeps_every_voxel_it_passes_through(slope, monkeypatch):
     """A floor tilted about the y axis (z = slope x - 1.13; 17 and 24 degrees) crosses one or two voxels of each
-    z column: the consensus keeps them (spans, module docstring 2b) but for slivers the plane cuts less than
-    SPAN_MARGIN deep (measured: 10 of 1170, 7 of 1290), and nothing else; one voxel a column missed 23 % / 30 %
-    of them (SPAN_MAX = 0: 270, 390)."""
+    z column: the consensus keeps every one (spans, module docstring 2b; with the former SPAN_MARGIN of 0.02
+    voxels the slivers the plane cuts less than that deep were lost: 10 of 1170, 7 of 1290) and at most one
+    voxel more (measured: 0 and 1, a column at the plane's rim); one voxel a column missed 23 % / 30 % of them
+    (SPAN_MAX = 0: 270, 390)."""
     from panovocc_cli.gt import consensus
 
     n = np.array([-slope, 0.0, 1.0])
@@ -333,7 +343,7 @@ def test_a_tilted_surface_keeps_every_voxel_it_passes_through(slope, monkeypatch
         return {v for v in occupied_set(g) if all(-1.2 <= x * H and (x + 1) * H <= 1.2 for x in v[:2])}
 
     got = inner(accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16))
-    assert got <= truth and len(truth - got) <= 0.01 * len(truth)
+    assert truth <= got and len(got - truth) <= 1
     monkeypatch.setattr(consensus, "SPAN_MAX", 0)
     one = inner(accumulate(frames, annotate=(), labels={}).grid(NAMES, 0.16))
     assert one <= truth and len(truth - one) >= 0.2 * len(truth)
