@@ -270,9 +270,13 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
         g = typed_from_json(GeometryParams, d["geometry"])
         if "observe_hits" not in d["geometry"]:  # made before O counted N: resume and revise as it was made
             g = dataclasses.replace(g, observe_hits=False)
+        if "offsets" not in d["geometry"]:  # made before the surface-offset channel P: resume and revise without it
+            g = dataclasses.replace(g, offsets=False)
         o = typed_from_json(OccupancyParams, d["occupancy"])
         if "spill" not in d["occupancy"]:  # made before the spill thinning: export as it was made
             o = dataclasses.replace(o, spill=0.0)
+        if "resolve" not in d["occupancy"]:  # made before the face resolution: export as it was made
+            o = dataclasses.replace(o, resolve=False)
         s = SemanticParams.from_json(d.get("semantic"))
         origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]
     except (KeyError, TypeError, ValueError, AttributeError) as e:
