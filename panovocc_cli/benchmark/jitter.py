@@ -7,7 +7,7 @@ For each home ``panovocc synth sK --seed K`` (``--house``: ``--house --seed K --
 truth (``panovocc gt``), a clean and a realistic-noise render (``panovocc render --width W [--noise realistic
 --seed K]``), and for each jitter (sigma_t metres, sigma_r degrees) a jittered copy of the true poses
 (``panovocc traj perturb SEQ/poses.txt P --jitter T --rot-jitter-deg R --seed S``) mapped as the CLI maps
-(``panovocc map SEQ OUT --poses P --segmenter none --checkpoint-every 0``; (0, 0) maps SEQ/poses.txt). Each
+(``panovocc map SEQ OUT --poses P --segmenter none --checkpoint-every 0 --offsets``; (0, 0) maps SEQ/poses.txt). Each
 map's memory is then exported with each ``--spill`` value and each ``--resolve`` value (0 off, 1 on: the
 face resolution, ``--resolve`` of ``panovocc map``) (``Mapper.export``, the function ``panovocc map`` writes
 prediction.npz with) and scored like ``panovocc eval`` (FreeOcc IoU, ``evaluation.metrics.count_pair``).
@@ -69,7 +69,8 @@ def _map(work: Path, seq: Path, name: str, depth: str, jitter: tuple, seed: int)
         if not pf.exists():
             _panovocc("traj", "perturb", seq / "poses.txt", pf, "--jitter", t, "--rot-jitter-deg", r, "--seed", seed)
         poses = ["--poses", pf]
-    _panovocc("map", seq, out, *poses, "--segmenter", "none", "--checkpoint-every", 0, "--quiet", "--overwrite")
+    _panovocc("map", seq, out, *poses, "--segmenter", "none", "--checkpoint-every", 0, "--offsets", "--quiet",
+              "--overwrite")
     return out
 
 

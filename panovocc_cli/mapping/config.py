@@ -333,6 +333,8 @@ class MapperConfig:
             raise PanovoccError(f"stride must be >= 1, got {g.stride}")
         if g.kernel not in KERNELS:
             raise PanovoccError(f"--kernel must be psvf or point, got {g.kernel!r}")
+        if self.occupancy.resolve and not g.offsets:  # the face resolution reads channel P: record it
+            g = self.geometry = dataclasses.replace(g, offsets=True)
         if self.occupancy.rule not in RULES:
             raise PanovoccError(f"--rule must be frequency or score, got {self.occupancy.rule!r}")
         if g.radial not in RADIAL:

@@ -58,8 +58,9 @@ class GeometryParams:
     radial: str = "fit"  # radial kernel scale: "model" = alpha r + beta; "fit" = fitted to each frame's depth
     disc_k: float = 3.0  # surfel kernel: edge/corner if a sample is farther than disc_k (alpha r + beta) + edge_abs
     # from the line through its two neighbours (per image axis)
-    offsets: bool = True  # record the surface-offset channel P (each frame's mean offset and normal of its
-    # measurements per voxel; docs/mapping.md step 4); False: maps whose config.json has no such key
+    offsets: bool = option(False, help="Record the surface-offset channel P (each frame's mean measured position, "
+                                       "normal and its square per voxel; what --resolve reads; implied by "
+                                       "--resolve; docs/mapping.md).")
     observe_hits: bool = True  # a frame that counts in a voxel's N also counts in its O (it observed the voxel),
     # so N <= O and N / O is the share of observations that saw surface; False: O counts valid comparisons of
     # the voxel's centre only (maps made before this rule, whose config.json has no such key)

@@ -32,7 +32,7 @@ def test_offset_channel_holds_each_frames_mean_position_and_normal():
     lo, hi = np.array([-1.97, -1.45, -1.21]), np.array([2.01, 1.53, 1.57])
     T = np.eye(4)
     depth = box_depth(256, T, lo, hi)
-    p = GeometryParams(voxel_size=H, stride=1)
+    p = GeometryParams(voxel_size=H, stride=1, offsets=True)
     geo, off = geometry_parts(depth, T, p)
     ref = geometry_delta(depth, T, p)
     assert np.array_equal(geo.keys, ref.keys) and all(np.array_equal(geo.channels[k], ref.channels[k]) for k in "ANFO")
@@ -41,6 +41,7 @@ def test_offset_channel_holds_each_frames_mean_position_and_normal():
     assert np.all(np.diff(off.keys) > 0) and np.all(P[:, 0] == 1) and np.array_equal(P[:, 7:10], P[:, 1:4] ** 2)
     assert np.isin(off.keys, geo.keys).all()
     assert len(geometry_parts(depth, T, dataclasses.replace(p, offsets=False))) == 1
+    assert GeometryParams().offsets is False  # recorded only when asked for (or with --resolve)
     c = index_to_center(unpack_keys(off.keys), H)
     q = P[:, 1:4] / OFFSET_STEPS * H  # mean offset, metres
     n = P[:, 4:7] / NORMAL_UNIT
@@ -245,3 +246,42 @@ def test_incremental_export_with_the_resolution_equals_a_full_one(monkeypatch, s
     inc = export_memory(keys, ch2, H, ON, vocab, sem, previous=before.grid, changed_keys=keys[pick])
     assert np.array_equal(inc.occupied_keys, full.occupied_keys)
     assert inc.grid.labels.tobytes() == full.grid.labels.tobytes()
+
+
+def test_map_with_resolve_records_p_and_a_map_without_it_does_not(tmp_path, capsys):
+    """`panovocc map --resolve` records channel P (implied) and exports with the resolution; a default map
+    keeps no P (and its config says so), and resolving its memory later changes nothing; revising the
+    resolved map back to the same poses leaves its memory bit for bit."""
+    from cli_helpers import run_cli
+    from room_sequence import write_room_sequence
+
+    from panovocc_cli.mapping.config import MapperConfig
+    from panovocc_cli.mapping.pipeline import load_config
+    from panovocc_cli.mapquery import open_map
+
+    assert MapperConfig(occupancy=OccupancyParams(resolve=True)).check().geometry.offsets
+    seq = tmp_path / "room"
+    write_room_sequence(seq, 3, 64, furniture=True)
+    code, _, err = run_cli(capsys, ["map", seq, tmp_path / "r", "--resolve", "--segmenter", "none", "--quiet"])
+    assert code == 0, err
+    cfg = load_config(tmp_path / "r")
+    assert cfg.geometry.offsets and cfg.occupancy.resolve
+    with np.load(tmp_path / "r" / "memory.npz") as z:
+        assert "ch_P" in z and np.asarray(z["ch_P"]).any()
+        before = {k: np.asarray(z[k]).copy() for k in z.files}
+    code, _, err = run_cli(capsys, ["revise", tmp_path / "r", seq / "poses.txt", "--quiet"])
+    assert code == 0, err
+    with np.load(tmp_path / "r" / "memory.npz") as z:
+        assert all(np.array_equal(before[k], z[k]) for k in z.files)
+    code, _, err = run_cli(capsys, ["map", seq, tmp_path / "d", "--segmenter", "none", "--quiet"])
+    assert code == 0, err
+    assert not load_config(tmp_path / "d").geometry.offsets
+    with np.load(tmp_path / "d" / "memory.npz") as z:
+        assert "ch_P" not in z
+    m = open_map(tmp_path / "d")
+    try:
+        plain = m.export().grid.labels.tobytes()
+        m.config = dataclasses.replace(m.config, occupancy=ON)
+        assert m.export().grid.labels.tobytes() == plain  # no P: the rule reads nothing
+    finally:
+        m.close()
