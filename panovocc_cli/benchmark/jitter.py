@@ -8,8 +8,8 @@ truth (``panovocc gt``), a clean and a realistic-noise render (``panovocc render
 --seed K]``), and for each jitter (sigma_t metres, sigma_r degrees) a jittered copy of the true poses
 (``panovocc traj perturb SEQ/poses.txt P --jitter T --rot-jitter-deg R --seed S``) mapped as the CLI maps
 (``panovocc map SEQ OUT --poses P --segmenter none --checkpoint-every 0 --offsets``; (0, 0) maps SEQ/poses.txt). Each
-map's memory is then exported with each ``--spill`` value and each ``--resolve`` value (0 off, 1 on: the
-face resolution, ``--resolve`` of ``panovocc map``) (``Mapper.export``, the function ``panovocc map`` writes
+map's memory is then exported with this panovocc's occupancy defaults and each ``--spill`` value and each
+``--resolve`` value (0 off, 1 on: the face resolution, ``--resolve`` of ``panovocc map``) (``Mapper.export``, the function ``panovocc map`` writes
 prediction.npz with) and scored like ``panovocc eval`` (FreeOcc IoU, ``evaluation.metrics.count_pair``).
 Every step's output is kept in WORK and reused when present, so a rerun only adds what is missing (a map
 made before the surface-offset channel P is made again: the face resolution needs it).
@@ -84,15 +84,16 @@ def _has_offsets(map_dir: Path) -> bool:
 def _ious(map_dir: Path, gt, exports) -> dict:
     """FreeOcc IoU (%) of the map's memory exported with each (spill, resolve) pair."""
     from ..evaluation.metrics import count_pair
+    from ..mapping.params import OccupancyParams
     from ..mapquery import open_map
 
     mapper = open_map(map_dir)
     try:
         out = {}
         base = mapper.config
-        for k, r in exports:
+        for k, r in exports:  # this panovocc's occupancy defaults, whatever the map was made with
             mapper.config = dataclasses.replace(base, occupancy=dataclasses.replace(
-                base.occupancy, spill=float(k), resolve=bool(r)))
+                OccupancyParams(), spill=float(k), resolve=bool(r)))
             c = count_pair(mapper.export().grid, gt)["freeocc"]
             out[k, r] = 100.0 * c.tp / max(c.tp + c.fp + c.fn, 1)
         mapper.config = base
