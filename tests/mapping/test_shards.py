@@ -257,7 +257,7 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
 
     out = tmp_path / "cli"
     code, so, err = run_cli(capsys, ["map", labelled_room, out, "--workers", "2", "--checkpoint-every", "3",
-                                     "--vocab", "wall,table,cabinet,shelf", "--quiet"])
+                                     "--vocab", "wall,table,cabinet,shelf", "--offsets", "--quiet"])
     assert code == 0, err
     assert f"mapped {N} of {N} frames" in so and "shards: 8 on 2 worker(s)" in so
     assert folder_bytes(out) == folder_bytes(sequential)
