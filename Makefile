@@ -17,7 +17,7 @@ help:
 	@echo "make bench  mapper speed against Open3D TSDF fusion on the same frames"
 	@echo "make bench-render  render speed against bare Open3D ray casting on the same rays"
 	@echo "make bench-shards  map frames/s on 1 and 2 Dask workers (one thread each), the bytes a shard sends back"
-	@echo "make bench-jitter  occupancy IoU against per-frame pose jitter, clean and realistic depth, spill thinning off/on"
+	@echo "make bench-jitter  occupancy IoU against per-frame pose jitter, clean and realistic depth, spill thinning and face resolution off/on"
 	@echo "make bench-scale  the long-term memory at building scale: RAM, disk, time per frame early and late, revise"
 	@echo "make pan-holo  the embedded Pan-Holo split: a house, realistic depth, 300 frames, lifted ground truth"
 	@echo "make gt-protocol  lifted ground truth and the mapper against mesh truth (4 seeds, clean and realistic depth)"
@@ -60,7 +60,8 @@ bench-scale: setup
 	$(BIN)/python -m panovocc_cli.benchmark.scale work/bench-scale $(SCALE_ARGS)
 
 # Pose jitter (issue 22; docs/slam.md "Pose jitter"): homes 2-4, 60 frames at 512x256, clean and realistic depth,
-# jitter 0 / 5 mm 0.05 deg / 10 mm 0.1 deg / 20 mm 0.2 deg, each map exported with the spill thinning off and on;
+# jitter 0 / 5 mm 0.05 deg / 10 mm 0.1 deg / 20 mm 0.2 deg, each map exported with the spill thinning and the face
+# resolution off and on;
 # work/bench-jitter/jitter.{csv,md}, every step kept and reused. JITTER_ARGS: e.g. --seeds 0 --house.
 bench-jitter: setup
 	$(BIN)/python -m panovocc_cli.benchmark.jitter work/bench-jitter $(JITTER_ARGS)

@@ -1,19 +1,21 @@
-"""``make bench-jitter``: occupancy IoU against per-frame pose jitter (issue 22), with and without the spill thinning.
+"""``make bench-jitter``: occupancy IoU against per-frame pose jitter (issue 22), with and without the spill
+thinning and the face resolution.
 
-    python -m panovocc_cli.benchmark.jitter WORK [--seeds 2,3,4] [--house] [--spill 0,0.2] ...
+    python -m panovocc_cli.benchmark.jitter WORK [--seeds 2,3,4] [--house] [--spill 0,0.2] [--resolve 0,1] ...
 
 For each home ``panovocc synth sK --seed K`` (``--house``: ``--house --seed K --frames 150``): its mesh ground
 truth (``panovocc gt``), a clean and a realistic-noise render (``panovocc render --width W [--noise realistic
 --seed K]``), and for each jitter (sigma_t metres, sigma_r degrees) a jittered copy of the true poses
 (``panovocc traj perturb SEQ/poses.txt P --jitter T --rot-jitter-deg R --seed S``) mapped as the CLI maps
-(``panovocc map SEQ OUT --poses P --segmenter none --checkpoint-every 0``; (0, 0) maps SEQ/poses.txt). Each
-map's memory is then exported with each ``--spill`` value (``Mapper.export``, the function ``panovocc map``
-writes prediction.npz with; ``--spill 0`` is the map's own prediction) and scored like ``panovocc eval``
-(FreeOcc IoU, ``evaluation.metrics.count_pair``). Every step's output is kept in WORK and reused when
-present, so a rerun only adds what is missing.
+(``panovocc map SEQ OUT --poses P --segmenter none --checkpoint-every 0 --offsets``; (0, 0) maps SEQ/poses.txt). Each
+map's memory is then exported with this panovocc's occupancy defaults and each ``--spill`` value and each
+``--resolve`` value (0 off, 1 on: the face resolution, ``--resolve`` of ``panovocc map``) (``Mapper.export``, the function ``panovocc map`` writes
+prediction.npz with) and scored like ``panovocc eval`` (FreeOcc IoU, ``evaluation.metrics.count_pair``).
+Every step's output is kept in WORK and reused when present, so a rerun only adds what is missing (a map
+made before the surface-offset channel P is made again: the face resolution needs it).
 
-Writes ``WORK/jitter.csv`` (scene, depth, sigma_t_mm, sigma_r_deg, spill, iou, loss = true-pose IoU at the
-same spill minus this one) and ``WORK/jitter.md`` (one row per scene, depth and spill).
+Writes ``WORK/jitter.csv`` (scene, depth, sigma_t_mm, sigma_r_deg, spill, resolve, iou, loss = true-pose IoU
+with the same export minus this one) and ``WORK/jitter.md`` (one row per scene, depth and export).
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ def _map(work: Path, seq: Path, name: str, depth: str, jitter: tuple, seed: int)
     t, r = jitter
     tag = f"{name}.{depth}.t{t * 1000:g}mm.r{r:g}deg"
     out = work / f"{tag}.map"
-    if (out / "prediction.npz").exists():
+    if (out / "prediction.npz").exists() and _has_offsets(out):
         return out
     poses = []
     if t or r:
@@ -67,31 +69,41 @@ def _map(work: Path, seq: Path, name: str, depth: str, jitter: tuple, seed: int)
         if not pf.exists():
             _panovocc("traj", "perturb", seq / "poses.txt", pf, "--jitter", t, "--rot-jitter-deg", r, "--seed", seed)
         poses = ["--poses", pf]
-    _panovocc("map", seq, out, *poses, "--segmenter", "none", "--checkpoint-every", 0, "--quiet", "--overwrite")
+    _panovocc("map", seq, out, *poses, "--segmenter", "none", "--checkpoint-every", 0, "--offsets", "--quiet",
+              "--overwrite")
     return out
 
 
-def _ious(map_dir: Path, gt, spills) -> dict:
-    """FreeOcc IoU (%) of the map's memory exported with each spill value."""
+def _has_offsets(map_dir: Path) -> bool:
+    """Whether the map in ``map_dir`` keeps the surface-offset channel P (made with ``geometry.offsets``)."""
+    from ..mapping.pipeline import load_config
+
+    return bool(load_config(map_dir).geometry.offsets)
+
+
+def _ious(map_dir: Path, gt, exports) -> dict:
+    """FreeOcc IoU (%) of the map's memory exported with each (spill, resolve) pair."""
     from ..evaluation.metrics import count_pair
+    from ..mapping.params import OccupancyParams
     from ..mapquery import open_map
 
     mapper = open_map(map_dir)
     try:
         out = {}
         base = mapper.config
-        for k in spills:
-            mapper.config = dataclasses.replace(base, occupancy=dataclasses.replace(base.occupancy, spill=float(k)))
+        for k, r in exports:  # this panovocc's occupancy defaults, whatever the map was made with
+            mapper.config = dataclasses.replace(base, occupancy=dataclasses.replace(
+                OccupancyParams(), spill=float(k), resolve=bool(r)))
             c = count_pair(mapper.export().grid, gt)["freeocc"]
-            out[k] = 100.0 * c.tp / max(c.tp + c.fp + c.fn, 1)
+            out[k, r] = 100.0 * c.tp / max(c.tp + c.fp + c.fn, 1)
         mapper.config = base
         return out
     finally:
         mapper.close()
 
 
-def run(work: Path, seeds, house: bool, width: int, spills, jitters, jitter_seed: int, progress=None) -> list:
-    """Rows of the table (dicts), every map made or reused in ``work``."""
+def run(work: Path, seeds, house: bool, width: int, exports, jitters, jitter_seed: int, progress=None) -> list:
+    """Rows of the table (dicts), every map made or reused in ``work``; ``exports``: (spill, resolve) pairs."""
     from ..io.grid import read_grid
 
     rows = []
@@ -101,31 +113,31 @@ def run(work: Path, seeds, house: bool, width: int, spills, jitters, jitter_seed
         for depth in DEPTHS:
             ref = None
             for jitter in jitters:
-                ious = _ious(_map(work, seqs[depth], name, depth, jitter, jitter_seed), gt, spills)
+                ious = _ious(_map(work, seqs[depth], name, depth, jitter, jitter_seed), gt, exports)
                 ref = ious if jitter == (0.0, 0.0) else ref
-                for k in spills:
+                for k, r in exports:
                     rows.append({"scene": name, "depth": depth, "sigma_t_mm": round(jitter[0] * 1000, 3),
-                                 "sigma_r_deg": jitter[1], "spill": k, "iou": round(ious[k], 2),
-                                 "loss": None if ref is None else round(ref[k] - ious[k], 2)})
+                                 "sigma_r_deg": jitter[1], "spill": k, "resolve": int(r), "iou": round(ious[k, r], 2),
+                                 "loss": None if ref is None else round(ref[k, r] - ious[k, r], 2)})
                 if progress:
-                    progress(rows[-len(spills):])
+                    progress(rows[-len(exports):])
     return rows
 
 
 def markdown(rows, jitters) -> str:
-    """One line per scene, depth and spill: the true-pose IoU, then the IoU (loss) at each jitter."""
-    head = ["scene", "depth", "spill"] + [f"{t * 1000:g} mm / {r:g}°" for t, r in jitters]
+    """One line per scene, depth and export: the true-pose IoU, then the IoU (loss) at each jitter."""
+    head = ["scene", "depth", "spill", "resolve"] + [f"{t * 1000:g} mm / {r:g}°" for t, r in jitters]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     keyed = {}
     for r in rows:
-        keyed.setdefault((r["scene"], r["depth"], r["spill"]), {})[(r["sigma_t_mm"], r["sigma_r_deg"])] = r
-    for (scene, depth, k), cells in keyed.items():
+        keyed.setdefault((r["scene"], r["depth"], r["spill"], r["resolve"]), {})[(r["sigma_t_mm"], r["sigma_r_deg"])] = r
+    for (scene, depth, k, res), cells in keyed.items():
         vals = []
         for t, rr in jitters:
             c = cells.get((round(t * 1000, 3), rr))
             vals.append("–" if c is None else f"{c['iou']:.2f}" if not (t or rr) or c["loss"] is None
                         else f"{c['iou']:.2f} (−{c['loss']:.2f})" if c["loss"] >= 0 else f"{c['iou']:.2f} (+{-c['loss']:.2f})")
-        lines.append("| " + " | ".join([scene, depth, f"{k:g}"] + vals) + " |")
+        lines.append("| " + " | ".join([scene, depth, f"{k:g}", "on" if res else "off"] + vals) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -136,6 +148,7 @@ def main(argv=None) -> None:
     ap.add_argument("--house", action="store_true", help="houses (synth --house --frames 150) instead of homes")
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--spill", default="0,0.3", help="spill thinning values to export with (0 = off)")
+    ap.add_argument("--resolve", default="0,1", help="face resolution off (0) and/or on (1) in each export")
     ap.add_argument("--jitters", default=",".join(f"{t}:{r}" for t, r in JITTERS),
                     help="sigma_t_metres:sigma_r_degrees pairs; 0:0 (true poses) must be first")
     ap.add_argument("--jitter-seed", type=int, default=0, help="seed of traj perturb (default 0)")
@@ -143,7 +156,7 @@ def main(argv=None) -> None:
     jitters = tuple(tuple(float(v) for v in j.split(":")) for j in a.jitters.split(","))
     if jitters[0] != (0.0, 0.0):
         ap.error("--jitters must start with 0:0 (the true-pose map every loss is measured against)")
-    spills = [float(v) for v in a.spill.split(",")]
+    exports = [(float(k), int(r)) for k in a.spill.split(",") for r in a.resolve.split(",")]
     a.work.mkdir(parents=True, exist_ok=True)
 
     def show(rows):
@@ -151,7 +164,7 @@ def main(argv=None) -> None:
             print(" ".join(f"{k}={v}" for k, v in r.items()), flush=True)
 
     try:
-        rows = run(a.work, [int(s) for s in a.seeds.split(",")], a.house, a.width, spills, jitters, a.jitter_seed, show)
+        rows = run(a.work, [int(s) for s in a.seeds.split(",")], a.house, a.width, exports, jitters, a.jitter_seed, show)
     except subprocess.CalledProcessError as e:
         sys.exit(f"error: {' '.join(map(str, e.cmd[2:]))} failed: {e.stderr.decode(errors='replace').strip()}")
     with open(a.work / "jitter.csv", "w", newline="") as f:

@@ -270,9 +270,13 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
         g = typed_from_json(GeometryParams, d["geometry"])
         if "observe_hits" not in d["geometry"]:  # made before O counted N: resume and revise as it was made
             g = dataclasses.replace(g, observe_hits=False)
+        if "offsets" not in d["geometry"]:  # made before the surface-offset channel P: resume and revise without it
+            g = dataclasses.replace(g, offsets=False)
         o = typed_from_json(OccupancyParams, d["occupancy"])
         if "spill" not in d["occupancy"]:  # made before the spill thinning: export as it was made
             o = dataclasses.replace(o, spill=0.0)
+        if "resolve" not in d["occupancy"]:  # made before the face resolution: export as it was made
+            o = dataclasses.replace(o, resolve=False)
         s = SemanticParams.from_json(d.get("semantic"))
         origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]
     except (KeyError, TypeError, ValueError, AttributeError) as e:
@@ -329,6 +333,8 @@ class MapperConfig:
             raise PanovoccError(f"stride must be >= 1, got {g.stride}")
         if g.kernel not in KERNELS:
             raise PanovoccError(f"--kernel must be psvf or point, got {g.kernel!r}")
+        if self.occupancy.resolve and not g.offsets:  # the face resolution reads channel P: record it
+            g = self.geometry = dataclasses.replace(g, offsets=True)
         if self.occupancy.rule not in RULES:
             raise PanovoccError(f"--rule must be frequency or score, got {self.occupancy.rule!r}")
         if g.radial not in RADIAL:

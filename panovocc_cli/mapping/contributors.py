@@ -2,7 +2,8 @@
 
 The mapper runs the contributors on every frame and keeps their deltas as the parts of the one
 :class:`~.memory.FrameDelta` it stores and adds to the memory. The geometry contributor,
-:func:`geometry_delta` (A, N, F, O), is the PSVF per-frame update (:mod:`.psvf.update`). The semantic
+:func:`geometry_delta` (A, N, F, O), is the PSVF per-frame update (:mod:`.psvf.update`);
+:func:`geometry_parts` adds its surface-offset part (channel P, ``OFFSET_CHANNEL``). The semantic
 contributor, :func:`semantic_delta`, starts from the frame's
 :class:`~panovocc_cli.semantics.observation.SemanticObservation` (the segmenter's output, reduced once and
 kept with the frame's delta, so a revision never runs the segmenter again):
@@ -44,9 +45,10 @@ import numpy as np
 
 from ..semantics.params import EvidenceWeights
 from .memory import ChannelSpec, Delta
-from .psvf.update import MAX_FRAME_VOXELS, frame_box, geometry_delta, keep_freed_heap
+from .psvf.update import MAX_FRAME_VOXELS, frame_box, geometry_delta, geometry_parts, keep_freed_heap
 
-__all__ = ["MAX_FRAME_VOXELS", "frame_box", "geometry_delta", "keep_freed_heap", "quantize_semantic_delta",
+__all__ = ["MAX_FRAME_VOXELS", "frame_box", "geometry_delta", "geometry_parts", "keep_freed_heap",
+           "quantize_semantic_delta",
            "semantic_channels", "semantic_delta"]
 
 S_STEPS = 256  # a frame's weight S_f in a voxel, in steps of 1 / S_STEPS

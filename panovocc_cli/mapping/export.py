@@ -38,8 +38,9 @@ from ..geometry.lattice import KEY_RANGE, index_to_center, pack_keys, unpack_ind
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.gsc import BLOCK, block_halo, consolidate_blocks, unaries
 from .contributors import NORMAL_STEPS, S_SCALE
-from .memory import FIXED_SCALE, GEOMETRY_NAMES
+from .memory import FIXED_SCALE, GEOMETRY_NAMES, OFFSET_CHANNEL
 from .params import RULES, OccupancyParams
+from .psvf.update import NORMAL_UNIT, OFFSET_STEPS
 
 UNCLASSED_COLOR = (160, 160, 160)  # map.ply colour of occupied voxels without a class
 UNKNOWN_CLASS = -2  # previous_labels: a voxel the previous grid does not hold as occupied
@@ -147,32 +148,107 @@ def thin_spill(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: Occupancy
     return out
 
 
+def _offsets(P) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """From channel P ((n, 10) int64): the frames with a measurement m (n,) float64, the mean over those frames
+    of the measurements' mean offset from the voxel centre (n, 3) in voxel edges, their mean normal towards
+    the camera (n, 3) and the variance over the frames of the mean offset (n, 3) in voxel edges squared
+    (zeros where m = 0)."""
+    P = np.asarray(P, np.float64).reshape(-1, OFFSET_CHANNEL.width)
+    m = P[:, 0]
+    d = np.maximum(m, 1.0)[:, None]
+    mean = P[:, 1:4] / d
+    var = np.maximum(P[:, 7:10] / d - mean * mean, 0.0) / OFFSET_STEPS ** 2
+    return m, mean / OFFSET_STEPS, P[:, 4:7] / (d * NORMAL_UNIT), var
+
+
+def resolve_faces(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: OccupancyParams) -> np.ndarray:
+    """The occupied mask of ``keys`` after the face resolution (docs/mapping.md, step 6).
+
+    An occupied voxel v loses to its occupied face neighbour u = v + d e_i when both hold one surface smeared
+    over their shared face (by pose error, or depth noise): in each, the measurements' mean normal (turned
+    towards the cameras) is within ``resolve_normal`` of axis i, pointing the same way in both (a surface
+    seen from one side: a thin wall's two faces, seen from opposite sides, are kept), the mean offset from
+    the centre points at the shared face by at least ``resolve_offset`` voxel edges, the two mean positions
+    are closer than ``resolve_gap`` times the spread of the frames' mean positions about them (two surfaces a
+    centimetre apart, each measured at its own place frame after frame, are kept), and the mean position of
+    the pair's measurements (each voxel's mean weighted by its frames with a measurement) lies in u. Reads
+    the base rule's decisions (``occ``), never resolved ones, and the neighbours by key, so a region's
+    result does not depend on how the memory is sliced.
+
+    Parameters
+    ----------
+    keys : (n,) int64; channels : their A, N, F, O and P; occ : (n,) bool, the base rule's decision
+    lookup : callable ``(keys, names) -> dict`` of those channels at any voxels (zeros where absent)
+    p : OccupancyParams (``resolve``, ``resolve_normal``, ``resolve_offset``, ``resolve_gap``)
+
+    Returns
+    -------
+    (n,) bool, ``occ`` less the voxels that lost to a neighbour
+    """
+    m_v, off_v, nrm_v, var_v = _offsets(channels["P"])
+    cand = occ & (m_v > 0)
+    if not cand.any():
+        return occ
+    sel = np.flatnonzero(cand)
+    kk = np.asarray(keys, np.int64).reshape(-1)[sel]
+    m_v, off_v, nrm_v, var_v = m_v[sel], off_v[sel], nrm_v[sel], var_v[sel]
+    lose = np.zeros(len(sel), bool)
+    for axis, sign in FACES:
+        facing = (np.abs(nrm_v[:, axis]) >= p.resolve_normal) & (sign * off_v[:, axis] >= p.resolve_offset)
+        if not facing.any():
+            continue
+        nk, ok = _neighbour_keys(kk[facing], axis, sign)
+        c = lookup(nk, GEOMETRY_NAMES + ("P",))
+        u_occ = classify(c["A"], c["N"], c["F"], c["O"], p)[0] & ok
+        m_u, off_u, nrm_u, var_u = _offsets(c["P"])
+        f = np.flatnonzero(facing)
+        same = (u_occ & (m_u > 0) & (np.abs(nrm_u[:, axis]) >= p.resolve_normal)
+                & (np.sign(nrm_u[:, axis]) == np.sign(nrm_v[f, axis])) & (-sign * off_u[:, axis] >= p.resolve_offset))
+        if p.resolve_gap > 0:  # one surface smeared, not two: the means closer than resolve_gap pooled spreads
+            gap = 1.0 + sign * off_u[:, axis] - sign * off_v[f, axis]
+            spread = np.sqrt((m_v[f] * var_v[f, axis] + m_u * var_u[:, axis]) / np.maximum(m_v[f] + m_u, 1.0))
+            same &= gap <= p.resolve_gap * spread
+        # the pair's mean position along the axis, from v's centre, in voxel edges; in u past the face at d/2
+        mean = (m_v[f] * off_v[f, axis] + m_u * (sign + off_u[:, axis])) / np.maximum(m_v[f] + m_u, 1.0)
+        lose[f] |= same & (sign * mean > 0.5)
+    out = occ.copy()
+    out[sel[lose]] = False
+    return out
+
+
 def decide(keys, channels, p: OccupancyParams, lookup=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`classify` of the voxels ``keys`` (their channels A, N, F, O) followed, with ``p.spill > 0``, by
-    :func:`thin_spill` (which needs ``lookup``): occupied and free masks and the score g."""
+    """:func:`classify` of the voxels ``keys`` (their channels A, N, F, O, and P with ``p.resolve``) followed,
+    with ``p.spill > 0``, by :func:`thin_spill` and, with ``p.resolve`` and a channel P, by
+    :func:`resolve_faces` (both need ``lookup``; each reads the base rule's decisions, and a voxel either
+    takes out is not occupied): occupied and free masks and the score g."""
     occ, free, g = classify(channels["A"], channels["N"], channels["F"], channels["O"], p)
-    if p.spill > 0:
+    resolve = p.resolve and "P" in channels
+    if p.spill > 0 or resolve:
         if lookup is None:
-            raise PanovoccError("the spill thinning needs the voxels' neighbours (a lookup of the memory by key)")
-        thin = thin_spill(keys, channels, occ, lookup, p)
-        free = free | (occ & ~thin & (np.asarray(channels["F"]).reshape(-1) > 0))
-        occ = thin
+            raise PanovoccError("the spill thinning and the face resolution need the voxels' neighbours (a lookup "
+                                "of the memory by key)")
+        kept = thin_spill(keys, channels, occ, lookup, p) if p.spill > 0 else occ
+        if resolve:
+            kept = kept & resolve_faces(keys, channels, occ, lookup, p)
+        free = free | (occ & ~kept & (np.asarray(channels["F"]).reshape(-1) > 0))
+        occ = kept
     return occ, free, g
 
 
 def key_lookup(keys: np.ndarray, channels):
-    """:func:`thin_spill`'s ``lookup`` over sorted ``keys`` and their channels (a dict of (n, w) arrays, or a
-    reader with ``at(positions, names)``): the geometry channels at any keys, zeros where absent."""
+    """:func:`thin_spill`'s and :func:`resolve_faces`' ``lookup`` over sorted ``keys`` and their channels (a dict
+    of (n, w) arrays, or a reader with ``at(positions, names)``): ``lookup(q, names=GEOMETRY_NAMES)``, those
+    channels at any keys q, zeros where absent."""
     keys = np.asarray(keys, np.int64)
 
-    def lookup(q: np.ndarray) -> dict:
+    def lookup(q: np.ndarray, names=GEOMETRY_NAMES) -> dict:
         q = np.asarray(q, np.int64)
         if len(keys) == 0:
-            return {n: np.zeros((len(q), 1), np.int64) for n in GEOMETRY_NAMES}
+            return {n: np.zeros((len(q), OFFSET_CHANNEL.width if n == "P" else 1), np.int64) for n in names}
         pos = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
         found = keys[pos] == q
-        c = _geometry(channels, pos)
-        return {n: np.where(found[:, None], np.asarray(c[n], np.int64), 0) for n in GEOMETRY_NAMES}
+        c = _geometry(channels, pos, names)
+        return {n: np.where(found[:, None], np.asarray(c[n], np.int64), 0) for n in names}
 
     return lookup
 
@@ -205,15 +281,26 @@ def _grid_of(keys, channels, voxel_size: float, p: OccupancyParams, class_names=
     """:func:`memory_to_grid`'s grid and occupied keys, and the positions (m,) of the occupied voxels in
     ``keys`` with their score g (m,) (:func:`_grid_of_pieces` of one piece)."""
     return _grid_of_pieces(lambda: [(keys, channels, None)], voxel_size, p, class_names,
-                           lookup=key_lookup(keys, channels) if p.spill > 0 else None)
+                           lookup=key_lookup(keys, channels) if needs_neighbours(p) else None)
 
 
-def _geometry(channels, rows) -> dict:
-    """A, N, F, O at ``rows`` (a slice, or positions) of a dict of (n, w) arrays or a reader with
-    ``at(positions, names)``."""
+def _geometry(channels, rows, names=GEOMETRY_NAMES) -> dict:
+    """Channels ``names`` (A, N, F, O) at ``rows`` (a slice, or positions) of a dict of (n, w) arrays or a
+    reader with ``at(positions, names)``."""
     if hasattr(channels, "at"):
-        return channels.at(np.arange(rows.start, rows.stop) if isinstance(rows, slice) else rows, GEOMETRY_NAMES)
-    return {k: channels[k][rows] for k in GEOMETRY_NAMES}
+        return channels.at(np.arange(rows.start, rows.stop) if isinstance(rows, slice) else rows, names)
+    return {k: channels[k][rows] for k in names}
+
+
+def decision_names(p: OccupancyParams, channels) -> tuple:
+    """The channels the export's decision reads: A, N, F, O, and P when the face resolution is on and the
+    memory has it (a map made without the channel exports without the rule)."""
+    return GEOMETRY_NAMES + (("P",) if p.resolve and "P" in channels else ())
+
+
+def needs_neighbours(p: OccupancyParams) -> bool:
+    """Whether the decision reads each voxel's face neighbours (the spill thinning, the face resolution)."""
+    return p.spill > 0 or p.resolve
 
 
 def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=("empty",), lookup=None):
@@ -232,8 +319,9 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
     i1 = np.full(3, np.iinfo(np.int64).min, np.int64)
     offset = 0
     for keys, channels, ids in pieces():
+        names = decision_names(p, channels)
         for sl in _slices(len(keys)):  # a memory's channels are read a slice at a time (never all at once)
-            c = _geometry(channels, sl)
+            c = _geometry(channels, sl, names)
             occ, free, g = decide(keys[sl], c, p, lookup)
             g_occ.append(g[occ])
             occ_keys.append(keys[sl][occ])
@@ -251,8 +339,9 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
                 occ_keys, occ_ids, g_occ)
     labels = np.full(tuple(i1 - i0 + 1), UNKNOWN, np.uint8)
     for keys, channels, _ in pieces():
+        names = decision_names(p, channels)
         for sl in _slices(len(keys)):
-            c = _geometry(channels, sl)
+            c = _geometry(channels, sl, names)
             occ, free, _ = decide(keys[sl], c, p, lookup)
             kept = occ | free
             local = unpack_keys(keys[sl][kept]) - i0
@@ -474,7 +563,7 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     if pieces is None:
         pieces = (lambda: [(keys, channels, None)])
         reader = (lambda ids: OccupiedChannels(channels, ids))
-        lookup = key_lookup(keys, channels) if occupancy.spill > 0 else None
+        lookup = key_lookup(keys, channels) if needs_neighbours(occupancy) else None
     grid, occ_keys, ids, g = _grid_of_pieces(pieces, voxel_size, occupancy, lookup=lookup)
     # a memory's channels are read at the occupied voxels only, and each when it is needed
     sub = reader(ids)
@@ -488,7 +577,7 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
             if changed_keys is None:
                 raise PanovoccError("an incremental export needs the changed voxels' keys with the previous grid")
             changed = np.asarray(changed_keys, np.int64).reshape(-1)
-            if occupancy.spill > 0:  # the thinning reads face neighbours: theirs may have changed state too
+            if needs_neighbours(occupancy):  # the rules read face neighbours: theirs may have changed state too
                 changed = np.concatenate([changed] + [k[ok] for k, ok in (_neighbour_keys(changed, a, d)
                                                                           for a, d in FACES)])
             changed = np.concatenate([changed, occ_keys[before == UNKNOWN_CLASS]])

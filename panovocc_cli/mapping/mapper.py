@@ -52,16 +52,17 @@ from ..grid import Grid
 from ..io import mapstore
 from ..io.poses import write_poses
 from .config import MapperConfig
-from .contributors import geometry_delta, semantic_channels, semantic_delta
+from .contributors import geometry_parts, semantic_channels, semantic_delta
 from .export import MapExport, OccupiedChannels, export_memory
-from .memory import GEOMETRY_CHANNELS, GEOMETRY_NAMES, ChannelSpec, FrameDelta, NonzeroChannels, VoxelMemory
+from .memory import GEOMETRY_CHANNELS, GEOMETRY_NAMES, OFFSET_CHANNEL, ChannelSpec, FrameDelta, NonzeroChannels, VoxelMemory
 from .rpu import DeltaStore, ReversibleMemory, has_store
 
 
 def memory_channels(config: MapperConfig) -> tuple[ChannelSpec, ...]:
-    """The memory channels of a mapper: A N F O, then E S rgb_sum normal_sum count with a vocabulary (and Z with
-    features)."""
-    return GEOMETRY_CHANNELS + (semantic_channels(len(config.vocab), config.feature_dim) if config.vocab else ())
+    """The memory channels of a mapper: A N F O, P (surface offsets, ``geometry.offsets``), then E S rgb_sum
+    normal_sum count with a vocabulary (and Z with features)."""
+    return (GEOMETRY_CHANNELS + ((OFFSET_CHANNEL,) if config.geometry.offsets else ())
+            + (semantic_channels(len(config.vocab), config.feature_dim) if config.vocab else ()))
 
 
 def has_measurement(depth: np.ndarray) -> bool:
@@ -84,7 +85,7 @@ def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = No
     g = config.geometry
     if not has_measurement(frame.depth):
         return FrameDelta(())
-    parts = [geometry_delta(frame.depth, frame.T_world_cam, g)]
+    parts = list(geometry_parts(frame.depth, frame.T_world_cam, g))
     if config.vocab and (observation is not None or frame.logits is not None):
         if observation is None:
             from ..semantics.observation import observe
@@ -359,7 +360,7 @@ class Mapper:
         return export_memory(None, None, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
                              self.config, origin_index=self.config.origin_index(), previous=previous,
                              changed_keys=changed_keys, pieces=pieces, reader=reader,
-                             lookup=lambda keys: mem.gather(keys, GEOMETRY_NAMES))  # the spill thinning's neighbours
+                             lookup=lambda keys, names=GEOMETRY_NAMES: mem.gather(keys, names))  # face neighbours
 
     def prediction(self) -> Grid:
         """The semantic occupancy grid: 1..C vocabulary classes (254 occupied without class), 0 free,

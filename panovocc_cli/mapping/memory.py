@@ -78,6 +78,9 @@ GEOMETRY_CHANNELS = (
     ChannelSpec("F", 1, "int"),  # free-space evidence (frames that saw through the voxel)
     ChannelSpec("O", 1, "int"),  # valid depth comparisons
 )
+OFFSET_CHANNEL = ChannelSpec("P", 10, "int")  # surface offsets: frames with a measurement in the voxel, their
+# summed mean offset from its centre (3), mean normal towards the camera (3) and squared mean offset (3)
+# (psvf.update._offset_rows); a sparse-group channel: kept only for voxels that held a measurement
 
 
 def quantize(values, kind: str) -> np.ndarray:

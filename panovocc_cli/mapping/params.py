@@ -58,6 +58,9 @@ class GeometryParams:
     radial: str = "fit"  # radial kernel scale: "model" = alpha r + beta; "fit" = fitted to each frame's depth
     disc_k: float = 3.0  # surfel kernel: edge/corner if a sample is farther than disc_k (alpha r + beta) + edge_abs
     # from the line through its two neighbours (per image axis)
+    offsets: bool = option(False, help="Record the surface-offset channel P (each frame's mean measured position, "
+                                       "normal and its square per voxel; what --resolve reads; implied by "
+                                       "--resolve; docs/mapping.md).")
     observe_hits: bool = True  # a frame that counts in a voxel's N also counts in its O (it observed the voxel),
     # so N <= O and N / O is the share of observations that saw surface; False: O counts valid comparisons of
     # the voxel's centre only (maps made before this rule, whose config.json has no such key)
@@ -72,6 +75,8 @@ class OccupancyParams:
     N > 0 and ``g >= tau_s``, or ``g >= tau_w`` with ``F / max(O, 1) <= gamma_f``.
     ``spill > 0``: then the spill thinning of :func:`~panovocc_cli.mapping.export.thin_spill` (needs the voxels'
     face neighbours; maps made before it, whose config.json has no ``spill`` key, export without it).
+    ``resolve``: the face resolution of :func:`~panovocc_cli.mapping.export.resolve_faces` (needs the face
+    neighbours and the surface-offset channel P; off by default, and for maps made before it).
     """
 
     rule: str = option("frequency", choices=RULES,
@@ -92,6 +97,19 @@ class OccupancyParams:
     spill_between: float = option(0.5, min=0, max=1,
                                   help="Spill thinning: the same between two occupied face neighbours, against the "
                                        "smaller of their support shares (0..1).")
+    resolve: bool = option(False, help="Face resolution: of two occupied face neighbours holding one surface "
+                                       "smeared over their shared face (seen from one side), keep the one holding "
+                                       "the pair's mean measured position (needs the map's channel P; "
+                                       "docs/mapping.md).")
+    resolve_normal: float = option(0.9, min=0, max=1,
+                                   help="Face resolution: least mean normal component along the face's axis (0..1).")
+    resolve_offset: float = option(0.2, min=0, max=0.5,
+                                   help="Face resolution: least mean offset from each voxel's centre towards the "
+                                        "shared face, in voxel edges (0..0.5).")
+    resolve_gap: float = option(4.0, min=0,
+                                help="Face resolution: the two voxels' mean positions must be closer than this times "
+                                     "the spread of the frames' mean positions (one smeared surface, not two; 0 = "
+                                     "no such test).")
     spill_support: float = option(0.7, min=0,
                                   help="Spill thinning: a spill's support per hit frame A/N is at least this times "
                                        "its neighbour's (a voxel a surface only clips is kept).")

@@ -290,7 +290,9 @@ def resolve(cfg: MapConfig, width: int) -> MapConfig:
     if not (np.isfinite(g.max_range) and g.max_range > g.min_range):  # across two fields: not a declared range
         raise PanovoccError(f"--max-range must be a distance in metres above min_range {g.min_range}, got {g.max_range}")
     weights = dataclasses.replace(cfg.semantic.weights, stride=sem_stride)
-    cfg = dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride),
+    # the face resolution reads channel P: a run with --resolve records it
+    cfg = dataclasses.replace(cfg, geometry=dataclasses.replace(g, stride=stride,
+                                                                offsets=g.offsets or cfg.occupancy.resolve),
                               semantic=dataclasses.replace(cfg.semantic, weights=weights),
                               seq=str(Path(cfg.seq).resolve()), out=str(Path(cfg.out).resolve()),
                               poses=cfg.poses if cfg.poses in (None, POSES_SLAM) else str(Path(cfg.poses).resolve()),

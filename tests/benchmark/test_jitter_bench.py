@@ -1,21 +1,22 @@
-"""make bench-jitter's table (benchmark/jitter.py): losses against the true-pose map of the same spill, and a
-jitter list that does not start with the true poses is refused."""
+"""make bench-jitter's table (benchmark/jitter.py): losses against the true-pose map of the same export (spill
+thinning, face resolution), and a jitter list that does not start with the true poses is refused."""
 
 import pytest
 
 from panovocc_cli.benchmark.jitter import main, markdown
 
 
-def test_markdown_rows_give_the_loss_against_the_same_spill():
+def test_markdown_rows_give_the_loss_against_the_same_export():
     jitters = ((0.0, 0.0), (0.01, 0.1))
-    rows = [{"scene": "home2", "depth": "clean", "sigma_t_mm": 0.0, "sigma_r_deg": 0.0, "spill": 0.0, "iou": 81.37, "loss": 0.0},
-            {"scene": "home2", "depth": "clean", "sigma_t_mm": 0.0, "sigma_r_deg": 0.0, "spill": 0.3, "iou": 81.14, "loss": 0.0},
-            {"scene": "home2", "depth": "clean", "sigma_t_mm": 10.0, "sigma_r_deg": 0.1, "spill": 0.0, "iou": 64.84, "loss": 16.53},
-            {"scene": "home2", "depth": "clean", "sigma_t_mm": 10.0, "sigma_r_deg": 0.1, "spill": 0.3, "iou": 81.5, "loss": -0.36}]
+    row = (lambda t, r, k, res, iou, loss: {"scene": "home2", "depth": "clean", "sigma_t_mm": t, "sigma_r_deg": r,  # noqa: E731
+                                            "spill": k, "resolve": res, "iou": iou, "loss": loss})
+    rows = [row(0.0, 0.0, 0.0, 0, 81.37, 0.0), row(0.0, 0.0, 0.3, 0, 81.14, 0.0), row(0.0, 0.0, 0.0, 1, 81.2, 0.0),
+            row(10.0, 0.1, 0.0, 0, 64.84, 16.53), row(10.0, 0.1, 0.3, 0, 81.5, -0.36), row(10.0, 0.1, 0.0, 1, 80.0, 1.2)]
     md = markdown(rows, jitters).splitlines()
-    assert md[0] == "| scene | depth | spill | 0 mm / 0° | 10 mm / 0.1° |"
-    assert md[2] == "| home2 | clean | 0 | 81.37 | 64.84 (−16.53) |"
-    assert md[3] == "| home2 | clean | 0.3 | 81.14 | 81.50 (+0.36) |"
+    assert md[0] == "| scene | depth | spill | resolve | 0 mm / 0° | 10 mm / 0.1° |"
+    assert md[2] == "| home2 | clean | 0 | off | 81.37 | 64.84 (−16.53) |"
+    assert md[3] == "| home2 | clean | 0.3 | off | 81.14 | 81.50 (+0.36) |"
+    assert md[4] == "| home2 | clean | 0 | on | 81.20 | 80.00 (−1.20) |"
 
 
 def test_jitters_must_start_with_the_true_poses(tmp_path):

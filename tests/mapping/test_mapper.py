@@ -14,6 +14,7 @@ from panovocc_cli.io.grid import read_grid
 from panovocc_cli.io.poses import write_poses
 from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.mapping import Frame, Mapper, MapperConfig
+from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.pipeline import MapConfig, load_config, run_map, run_revise, sequence_frames
 
 W = 64
@@ -40,9 +41,12 @@ def seq_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def mapped(seq_dir, tmp_path_factory):
-    """`panovocc map` (simulated segmenter, 12 classes) of the room: (output folder, its frame source)."""
+    """`panovocc map` (simulated segmenter, 12 classes) of the room with the surface-offset channel P (its
+    revise, remove, save and load below are exact like the other channels'): (output folder, its frame
+    source)."""
     out = tmp_path_factory.mktemp("mapped") / "m"
-    run_map(MapConfig(seq=str(seq_dir), out=str(out), checkpoint_every=0), progress=False)
+    run_map(MapConfig(seq=str(seq_dir), out=str(out), checkpoint_every=0, geometry=GeometryParams(offsets=True)),
+            progress=False)
     cfg = load_config(out)
     return out, cfg, sequence_frames(cfg, Sequence(seq_dir))
 
@@ -72,6 +76,7 @@ def test_frame_by_frame_equals_map_command(mapped, tmp_path):
     assert g.class_names == ref.class_names and np.array_equal(g.origin, ref.origin)
     assert len(set(np.unique(g.labels).tolist()) - {0, 254, 255}) > 1  # classes, not only geometry
     saved = mapper.save(tmp_path / "api")
+    assert "ch_P" in _arrays(mapper) and _arrays(mapper)["ch_P"].any()  # the surface offsets, summed like the rest
     for name in ("memory.npz", "poses.txt"):
         assert (saved / name).read_bytes() == (out / name).read_bytes(), name
     a, b = Mapper.load(saved), Mapper.load(out)  # the same records: each frame's delta, bit for bit
@@ -243,7 +248,7 @@ def test_frame_checks_and_empty_depth_frame(mapped):
     # a geometry-only mapper ignores logits
     geo = Mapper(MapperConfig(geometry=cfg.geometry, occupancy=cfg.occupancy))
     geo.integrate(frames(1))
-    assert [c.name for c in geo.memory.specs] == ["A", "N", "F", "O"]
+    assert [c.name for c in geo.memory.specs] == ["A", "N", "F", "O", "P"]  # the fixture's map keeps P
     assert set(np.unique(geo.prediction().labels).tolist()) <= {0, 254, 255}
 
 

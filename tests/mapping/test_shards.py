@@ -43,8 +43,13 @@ def labelled_room(tmp_path_factory):
 
 
 def _cfg(seq, out, **kw):
+    """The run's config: semantic, with the surface-offset channel P (every shard, merge and resume below sums
+    it exactly like the other channels)."""
+    from panovocc_cli.mapping.params import GeometryParams
+
     kw.setdefault("checkpoint_every", 3)
     kw.setdefault("semantic", _semantic())
+    kw.setdefault("geometry", GeometryParams(offsets=True))
     return MapConfig(seq=str(seq), out=str(out), **kw)
 
 
@@ -161,6 +166,8 @@ def test_merging_two_halves_equals_the_whole_map_and_revises_like_it(labelled_ro
     assert f"merged 2 maps ({N} frames)" in so
     assert folder_bytes(out) == folder_bytes(sequential)
     assert _records(out) == _records(sequential)  # every record, byte for byte, in frame order
+    with np.load(out / "memory.npz") as z:  # the surface-offset channel P is part of what is summed exactly
+        assert "ch_P" in z and np.asarray(z["ch_P"]).any()
     # the merged map revises exactly as the whole map does
     poses = Sequence(labelled_room).poses.copy()
     poses[5][:3, 3] += [0.03, -0.02, 0.0]
@@ -250,7 +257,7 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
 
     out = tmp_path / "cli"
     code, so, err = run_cli(capsys, ["map", labelled_room, out, "--workers", "2", "--checkpoint-every", "3",
-                                     "--vocab", "wall,table,cabinet,shelf", "--quiet"])
+                                     "--vocab", "wall,table,cabinet,shelf", "--offsets", "--quiet"])
     assert code == 0, err
     assert f"mapped {N} of {N} frames" in so and "shards: 8 on 2 worker(s)" in so
     assert folder_bytes(out) == folder_bytes(sequential)

@@ -162,7 +162,8 @@ def frame_box(x_world, half, kappa, cam_pos, voxel_size: float, max_range: float
 
 
 def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams) -> Delta:
-    """One ERP frame's geometric delta (A fixed point, N, F, O) on the global lattice.
+    """One ERP frame's geometric delta (A fixed point, N, F, O) on the global lattice (:func:`geometry_parts`
+    without the surface-offset part).
 
     Parameters
     ----------
@@ -174,6 +175,17 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     Delta with channels A (fixed point, FIXED_SCALE), N (0/1: a measurement of the frame lies in the
     voxel, or, for psvf, its kernel support there is at least ``n_fill``), F (0/1), O (0/1)
     """
+    return _geometry(depth, T_world_cam, p, False)[0]
+
+
+def geometry_parts(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams) -> tuple:
+    """One ERP frame's geometric delta (:func:`geometry_delta`) and, with ``p.offsets``, its surface-offset
+    part (channel P over the voxels holding measurements, :func:`_offset_rows`): a tuple of one or two
+    :class:`Delta`."""
+    return _geometry(depth, T_world_cam, p, p.offsets)
+
+
+def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
     if p.kernel not in KERNELS:
         raise PanovoccError(f"unknown kernel {p.kernel!r} (expected psvf or point)")
     c_norm = 1.0 / (2.0 * np.pi) if p.kernel == "psvf" else 1.0
@@ -184,7 +196,8 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
         A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
-        return _finish(A, x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
+        d = _finish(A, x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
+        return (d, offset_delta(x, ax, T_world_cam[:3, 3], p.voxel_size)) if offsets else (d,)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
     er = sr = None
@@ -202,7 +215,69 @@ def geometry_delta(depth: np.ndarray, T_world_cam: np.ndarray, p: GeometryParams
     lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
     _check_box(shape)
     A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
-    return _finish(A, x, depth, T_world_cam, p, lo, shape)
+    d = _finish(A, x, depth, T_world_cam, p, lo, shape)
+    if not offsets:
+        return (d,)
+    v = T_world_cam[:3, 3] - x  # these kernels have no normal: the ray, towards the camera
+    return d, offset_delta(x, v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), T_world_cam[:3, 3],
+                           p.voxel_size)
+
+
+OFFSET_STEPS = 254  # channel P: a mean offset's unit, 1/OFFSET_STEPS of the voxel edge (|q| <= 127: int8 per frame)
+NORMAL_UNIT = 127  # channel P: a mean normal component's unit, 1/NORMAL_UNIT
+
+
+@nb.njit(cache=True)
+def _offset_rows(x, nrm, cam, h):
+    """The frame's surface-offset rows (docs/mapping.md, step 4, channel P): per voxel holding measurements
+    x ((n, 3) metres), in key order, its key and ``[1, q (3), m (3), q^2 (3)]`` int64: q the measurements'
+    mean offset from the voxel's centre per axis in 1/OFFSET_STEPS of the edge h, m their mean unit normal
+    ``nrm`` turned towards the camera ``cam`` in 1/NORMAL_UNIT (each rounded to the nearest integer), and
+    the squares of q (summed over frames: the spread of the frames' mean positions)."""
+    n = x.shape[0]
+    keys = np.empty(n, np.int64)
+    for p in range(n):
+        keys[p] = _pack(np.int64(np.floor(x[p, 0] / h)), np.int64(np.floor(x[p, 1] / h)),
+                        np.int64(np.floor(x[p, 2] / h)))
+    order = np.argsort(keys, kind="mergesort")
+    uk = np.empty(n, np.int64)
+    rows = np.zeros((n, 10), np.int64)
+    acc = np.zeros(6)
+    m = 0
+    cnt = 0
+    for t in range(n + 1):
+        if t == n or (t > 0 and keys[order[t]] != keys[order[t - 1]]):
+            if cnt:
+                rows[m, 0] = 1
+                for c in range(3):
+                    q = np.int64(np.rint(acc[c] / cnt * OFFSET_STEPS))
+                    rows[m, 1 + c] = q
+                    rows[m, 4 + c] = np.int64(np.rint(acc[3 + c] / cnt * NORMAL_UNIT))
+                    rows[m, 7 + c] = q * q
+                uk[m] = keys[order[t - 1]]
+                m += 1
+            acc[:] = 0.0
+            cnt = 0
+        if t == n:
+            break
+        p = order[t]
+        s = 0.0
+        for c in range(3):
+            s += nrm[p, c] * (cam[c] - x[p, c])
+        sg = 1.0 if s >= 0.0 else -1.0
+        for c in range(3):
+            acc[c] += x[p, c] / h - (np.floor(x[p, c] / h) + 0.5)
+            acc[3 + c] += sg * nrm[p, c]
+        cnt += 1
+    return uk[:m], rows[:m]
+
+
+def offset_delta(x, nrm, cam, voxel_size: float) -> Delta:
+    """The frame's surface-offset part: channel P (:func:`_offset_rows`) of the measurements ``x`` ((n, 3)
+    metres) with unit normals ``nrm`` ((n, 3)) seen from the camera centre ``cam`` ((3,) metres)."""
+    keys, rows = _offset_rows(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(nrm, np.float64),
+                              np.ascontiguousarray(cam, np.float64), float(voxel_size))
+    return Delta(keys, {"P": rows})
 
 
 def _check_box(shape) -> None:
