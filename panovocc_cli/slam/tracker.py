@@ -37,6 +37,15 @@ frame's pose, ``T_world_first``):
    keyframe poses move, and every placed frame follows its keyframe
    (``T_world_frame = T_world_kf · T_kf_frame``).
 
+6. **Final refinement** (:meth:`Tracker.finish`, ``refine*``): every keyframe registered to its
+   ``refine_partners`` nearest older keyframes within ``refine_radius_m`` (a KD-tree), the odometry edges
+   registered again, the graph optimised; ``refine_passes`` passes, and optionally one every
+   ``refine_every`` keyframes. Every frame it moved by more than ``final_revise_m`` / ``final_revise_deg``
+   is returned as a revision.
+7. **Bounded store.** Only the ``kf_held`` keyframes used last keep their registration structures; the
+   others keep their downsampled points, the structures rebuilt from them (the same bytes) when needed.
+   Loop candidates come from a KD-tree over the keyframe positions (:meth:`Tracker._loop_candidates`).
+
 Every frame pose that an optimisation moves by more than ``revise_trans_m`` or ``revise_rot_deg``
 from the pose last handed out is returned in :attr:`TrackStep.revisions`: the caller sends it to
 its map (``Mapper.revise``). The poses handed out (:meth:`Tracker.committed`) are what the map was
