@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 BACKENDS = ("small_gicp", "open3d")
+NEIGHBORS = 10  # small_gicp: neighbours of a point's covariance
 
 
 def erp_points(depth: np.ndarray, rays: np.ndarray, stride: int, min_range: float, max_range: float) -> np.ndarray:
@@ -57,6 +58,20 @@ class Cloud:
 
     def __len__(self) -> int:
         return len(self.points)
+
+    def structure_bytes(self) -> int:
+        """Bytes of the registration structures' arrays (small_gicp: its points and covariances; Open3D: points
+        and normals; KD-trees not counted); 0 when compacted."""
+        if self.handle is None:
+            return 0
+        if isinstance(self.handle, tuple):
+            pc = self.handle[0]
+            return int(np.asarray(pc.points()).nbytes + np.asarray(pc.covs()).nbytes)
+        return int(np.asarray(self.handle.points).nbytes + np.asarray(self.handle.normals).nbytes)
+
+    def compact(self) -> None:
+        """Drop the registration structures, keep the points (:meth:`Registration.restore` rebuilds them)."""
+        self.handle = self._o3d = None
 
     def o3d(self):
         """The cloud as an ``open3d.geometry.PointCloud`` (built once)."""
@@ -101,7 +116,7 @@ class Registration:
 
             if len(pts) == 0:
                 return Cloud(np.zeros((0, 3)))
-            cloud, tree = small_gicp.preprocess_points(pts, downsampling_resolution=self.voxel_m, num_neighbors=10,
+            cloud, tree = small_gicp.preprocess_points(pts, downsampling_resolution=self.voxel_m, num_neighbors=NEIGHBORS,
                                                        num_threads=self.threads)
             return Cloud(np.asarray(cloud.points())[:, :3].copy(), (cloud, tree))
         import open3d as o3d
@@ -111,6 +126,26 @@ class Registration:
             if len(pc.points):
                 pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * self.voxel_m, max_nn=20))
         return Cloud(np.asarray(pc.points).copy(), pc, pc)
+
+    def restore(self, cloud: Cloud) -> None:
+        """Rebuild the structures of a compacted ``cloud`` from its (already downsampled) points: the same
+        bytes as :meth:`prepare` built (small_gicp: its KD-tree and covariances of the same points)."""
+        if cloud.handle is not None or len(cloud) == 0:
+            return
+        if self.backend == "small_gicp":
+            import small_gicp
+
+            pc = small_gicp.PointCloud(cloud.points)
+            tree = small_gicp.KdTree(pc, num_threads=self.threads)
+            small_gicp.estimate_covariances(pc, tree, num_neighbors=NEIGHBORS, num_threads=self.threads)
+            cloud.handle = (pc, tree)
+            return
+        import open3d as o3d
+
+        with open3d_threads(self.threads):
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+            pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * self.voxel_m, max_nn=20))
+        cloud.handle = cloud._o3d = pc
 
     def align(self, target: Cloud, source: Cloud, init_T_target_source: np.ndarray, max_corr_m: float) -> RegResult:
         """Register ``source`` onto ``target`` from the initial guess (4, 4); ``max_corr_m`` metres."""

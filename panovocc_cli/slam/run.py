@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, MapConfig
+from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, MapConfig, frame_ids
 from .tracker import SlamParams, Tracker
 
 SLAM_JSON = "slam.json"
@@ -45,9 +45,11 @@ class SlamPoses:
         ``seq.poses``, the placeholders :func:`~..mapping.pipeline.slam_first_poses` gave the sequence.
     """
 
-    def __init__(self, params: SlamParams | None = None, first_pose: str | None = None):
+    def __init__(self, params: SlamParams | None = None, first_pose: str | None = None, frames: str | None = None):
         self.params = params or SlamParams()
         self.first_pose = first_pose
+        self.frames = frames  # the run's --frames (its last frame ends the sequence: the final refinement)
+        self.last: int | None = None
         self.tracker: Tracker | None = None
         self.steps: list = []
         self.revisions = 0  # frame revisions sent to the map
@@ -57,13 +59,28 @@ class SlamPoses:
         if frame is None:  # bind to a sequence
             self.tracker = Tracker(seq_or_index.meta.width, seq_or_index.meta.height, self.params,
                                    T_world_first=None if self.first_pose is None else seq_or_index.poses)
+            ids = frame_ids(self.frames, len(seq_or_index))
+            self.last = int(ids[-1]) if len(ids) else None
             return self
         step = self.tracker.track(int(seq_or_index), frame.depth)
         self.steps.append((step.frame_id, step.status, step.fitness, step.reason))
-        self.revisions += len(step.revisions)
+        T, revisions = step.T_world_cam, step.revisions
+        if step.frame_id == self.last:  # the end of the sequence: the final refinement moves earlier frames
+            T, revisions = finish(self.tracker, step.frame_id, T, revisions)
+        self.revisions += len(revisions)
         if step.loops and self.on_loops is not None:
             self.on_loops(step.frame_id, step.loops)
-        return step.T_world_cam, step.revisions
+        return T, revisions
+
+
+def finish(tracker: Tracker, fid: int, T, revisions: list) -> tuple:
+    """After the last frame ``fid`` (placed at ``T``, or None, with ``revisions``): :meth:`Tracker.finish`'s
+    refinement; returns the last frame's pose and the revisions of the others, each frame once (its final
+    pose)."""
+    moved = dict(revisions) | dict(tracker.finish())
+    if T is not None:
+        T = moved.pop(fid, T)
+    return T, sorted(moved.items())
 
 
 def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
@@ -80,7 +97,7 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     from ..mapping.pipeline import run_map
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
-    source = SlamPoses(params, first_pose=cfg.first_pose)
+    source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)
     summary["slam"] = _write_slam_outputs(
@@ -162,12 +179,13 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
         depth = sq.depth(i)
         t0 = time.perf_counter()
         step = tracker.track(i, depth)
+        T, moved = finish(tracker, i, step.T_world_cam, step.revisions) if i == n - 1 else (step.T_world_cam, step.revisions)
         t_track += time.perf_counter() - t0
-        for fid, T in step.revisions:
-            poses[fid] = T
-        revisions += len(step.revisions)
+        for fid, Tr in moved:
+            poses[fid] = Tr
+        revisions += len(moved)
         if step.placed:
-            poses[i] = last = step.T_world_cam
+            poses[i] = last = T
         else:
             poses[i] = last
             unplaced.append(i)

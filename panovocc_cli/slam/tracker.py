@@ -37,6 +37,15 @@ frame's pose, ``T_world_first``):
    keyframe poses move, and every placed frame follows its keyframe
    (``T_world_frame = T_world_kf · T_kf_frame``).
 
+6. **Final refinement** (:meth:`Tracker.finish`, ``refine*``): every keyframe registered to its
+   ``refine_partners`` nearest older keyframes within ``refine_radius_m`` (a KD-tree), the odometry edges
+   registered again, the graph optimised; ``refine_passes`` passes, and optionally one every
+   ``refine_every`` keyframes. Every frame it moved by more than ``final_revise_m`` / ``final_revise_deg``
+   is returned as a revision.
+7. **Bounded store.** Only the ``kf_held`` keyframes used last keep their registration structures; the
+   others keep their downsampled points, the structures rebuilt from them (the same bytes) when needed.
+   Loop candidates come from a KD-tree over the keyframe positions (:meth:`Tracker._loop_candidates`).
+
 Every frame pose that an optimisation moves by more than ``revise_trans_m`` or ``revise_rot_deg``
 from the pose last handed out is returned in :attr:`TrackStep.revisions`: the caller sends it to
 its map (``Mapper.revise``). The poses handed out (:meth:`Tracker.committed`) are what the map was
@@ -47,6 +56,7 @@ printing (Open3D's console output is silenced).
 from __future__ import annotations
 
 import dataclasses
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -106,9 +116,20 @@ class SlamParams:
     reloc_distinct_deg: float = 15.0
     reloc_voxel_m: float = 0.25     # relocalisation screens its hypotheses with the frame at this voxel size,
     reloc_refine: int = 4           # then refines this many distinct ones at full resolution
+    refine: bool = True             # a final refinement of the keyframe poses against each other (Tracker.finish)
+    refine_passes: int = 2          # final refinements, each registering the pairs again from the last one's poses
+    refine_every: int = 0           # and one after every this many new keyframes (0 = only the final one)
+    refine_radius_m: float = 3.0    # keyframes this close are registered to each other,
+    refine_partners: int = 4        # each to at most this many nearest older ones (tuned on homes 5, 6, house 5)
+    refine_fitness: float = 0.5     # a pair is an edge when this share of points matches within loop_max_corr_m
+    refine_max_m: float = 0.1       # and its registration corrects the estimate by at most this
+    refine_max_deg: float = 2.0
     revise_trans_m: float = 0.01    # a frame moved further than this by an optimisation is revised in the map
     revise_rot_deg: float = 0.2
+    final_revise_m: float = 0.0005  # after the final refinement: finer (the poses handed out are the refined ones)
+    final_revise_deg: float = 0.01
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
+    kf_held: int = 32               # keyframes that keep their registration structures (the last used; >= 2)
 
     def check(self) -> "SlamParams":
         if self.backend not in BACKENDS:
@@ -189,6 +210,7 @@ class Tracker:
         self._screen = Registration(p.backend, p.reloc_voxel_m, 10, p.threads)  # screening: 10 iterations
         self.T_world_first = LEVEL_FIRST.copy() if T_world_first is None else np.asarray(T_world_first, np.float64)
         self.keyframes: list[_Keyframe] = []
+        self._held: OrderedDict[int, None] = OrderedDict()  # keyframes holding registration structures, last used last
         self._edges: list[tuple[int, int, np.ndarray, np.ndarray, bool]] = []  # (source kf, target kf, T_t_s, info, uncertain)
         self._placed: dict[int, tuple[int, np.ndarray]] = {}   # frame id -> (keyframe index, T_kf_frame)
         self._committed: dict[int, np.ndarray] = {}
@@ -196,12 +218,39 @@ class Tracker:
         self.relocalised: list[int] = []
         self.loops: list[tuple[int, int]] = []
         self.optimisations = 0
+        self.refinements = 0
         self._ref = 0
         self._last: tuple[int, np.ndarray] | None = None
         self._velocity = np.eye(4)
         self._prev: tuple[int, Cloud] | None = None  # the previous frame, if placed (a keyframe to promote)
 
     # -- state -----------------------------------------------------------------------------------
+    def _add_keyframe(self, kf: _Keyframe) -> None:
+        self.keyframes.append(kf)
+        self._cloud(len(self.keyframes) - 1)
+
+    def _cloud(self, k: int) -> Cloud:
+        """Keyframe ``k``'s cloud ready for registration. The registration structures (small_gicp's
+        covariances and KD-tree, Open3D's cloud) are held for the ``kf_held`` keyframes used last; the others
+        keep only their downsampled points, and the structures are rebuilt from them when needed (the same
+        bytes: :meth:`.registration.Registration.restore`), so the store grows by the points alone."""
+        cloud = self.keyframes[k].cloud
+        if cloud.handle is None:
+            self.reg.restore(cloud)
+        self._held[k] = None
+        self._held.move_to_end(k)
+        while len(self._held) > max(2, self.params.kf_held):
+            self.keyframes[self._held.popitem(last=False)[0]].cloud.compact()
+        return cloud
+
+    def memory(self) -> dict:
+        """The keyframe store: ``points`` (bytes of every keyframe's downsampled points, 24 a point), ``held``
+        (keyframes with registration structures) and ``held_bytes`` (those structures' arrays, KD-trees not
+        counted), ``keyframes``, ``edges``, ``frames`` (placed frames)."""
+        return {"points": int(sum(kf.cloud.points.nbytes for kf in self.keyframes)), "held": len(self._held),
+                "held_bytes": int(sum(self.keyframes[k].cloud.structure_bytes() for k in self._held)),
+                "keyframes": len(self.keyframes), "edges": len(self._edges), "frames": len(self._placed)}
+
     def pose(self, frame_id: int) -> np.ndarray:
         """Current estimate (4, 4) of a placed frame: its keyframe's optimised pose times its offset."""
         k, T_kf = self._placed[int(frame_id)]
@@ -224,14 +273,14 @@ class Tracker:
             return self._lose(fid, f"few valid depths ({len(cloud)} points after downsampling, need {p.min_points})")
         if not self.keyframes:
             first = self.T_world_first if self.T_world_first.ndim == 2 else self.T_world_first[fid]
-            self.keyframes.append(_Keyframe(fid, cloud, first.copy()))
+            self._add_keyframe(_Keyframe(fid, cloud, first.copy()))
             return self._place(fid, 0, np.eye(4), KEYFRAME, 1.0, cloud)
         last = self._last[1] if self._last is not None else self.keyframes[self._ref].T_world
         guesses = [last @ self._velocity]  # constant velocity
         if p.zero_motion_init and _differs(guesses[0], last, 0.05, 2.0):
             guesses.append(last)  # no motion: where a turn or a stop breaks the constant velocity
         kf = self.keyframes[self._ref]
-        r, init = self._best_fit(kf.cloud, cloud, [np.linalg.inv(kf.T_world) @ g for g in guesses])
+        r, init = self._best_fit(self._cloud(self._ref), cloud, [np.linalg.inv(kf.T_world) @ g for g in guesses])
         pred = kf.T_world @ init  # the guess that won
         status, k = TRACKED, self._ref
         prev = self._prev
@@ -262,9 +311,9 @@ class Tracker:
         fid, cloud = self._prev
         k, T_kf = self._placed[fid]
         new = len(self.keyframes)
-        self.keyframes.append(_Keyframe(fid, cloud, self.keyframes[k].T_world @ T_kf,
+        self._add_keyframe(_Keyframe(fid, cloud, self.keyframes[k].T_world @ T_kf,
                                         self.keyframes[k].odo_m + float(np.linalg.norm(T_kf[:3, 3]))))
-        info = self.reg.information(self.keyframes[k].cloud, cloud, T_kf, p.max_corr_m)
+        info = self.reg.information(self._cloud(k), cloud, T_kf, p.max_corr_m)
         self._edges.append((new, k, T_kf.copy(), info, False))
         self._placed[fid] = (new, np.eye(4))
         self._ref = new
@@ -331,7 +380,7 @@ class Tracker:
 
         def add(k: int, r, is_tracked: bool):
             kf = self.keyframes[k]
-            f = self.reg.align(kf.cloud, cloud, r.T_target_source, p.loop_max_corr_m)
+            f = self.reg.align(self._cloud(k), cloud, r.T_target_source, p.loop_max_corr_m)
             if np.all(np.isfinite(f.T_target_source)):
                 hyps.append((f.fitness, k, f, kf.T_world @ f.T_target_source, is_tracked))
 
@@ -347,7 +396,7 @@ class Tracker:
             kf = self.keyframes[int(k)]
             inits = [np.linalg.inv(kf.T_world) @ pred] + [_yaw(a) for a in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi)]
             for init in inits:  # headings about the keyframe's vertical axis: a panorama's one ambiguity worth trying
-                r = self._screen.align(kf.cloud, coarse, init, p.max_corr_m)
+                r = self._screen.align(self._cloud(int(k)), coarse, init, p.max_corr_m)
                 if r.fitness >= p.min_fitness and np.all(np.isfinite(r.T_target_source)):
                     screened.append((r.fitness, int(k), r, kf.T_world @ r.T_target_source))
         kept: list = []
@@ -385,14 +434,18 @@ class Tracker:
                                     or _angle_deg(T_kf_frame[:3, :3]) > p.kf_rot_deg or fitness < p.kf_fitness))
         if make_kf:
             new = len(self.keyframes)
-            self.keyframes.append(_Keyframe(fid, cloud, T_world.copy(), kf.odo_m + float(np.linalg.norm(T_kf_frame[:3, 3]))))
-            info = self.reg.information(kf.cloud, cloud, T_kf_frame, p.max_corr_m)
+            self._add_keyframe(_Keyframe(fid, cloud, T_world.copy(), kf.odo_m + float(np.linalg.norm(T_kf_frame[:3, 3]))))
+            info = self.reg.information(self._cloud(k), cloud, T_kf_frame, p.max_corr_m)
             self._edges.append((new, k, T_kf_frame.copy(), info, False))
             self._placed[fid] = (new, np.eye(4))
             self._ref = new
             loops, urgent = self._close_loops(new)
-            if urgent:
+            periodic = p.refine_every > 0 and len(self.keyframes) % p.refine_every == 0
+            if periodic:  # its optimisation takes the new loop edges too
+                self.refine(revise=False)
+            elif urgent:
                 self._optimise()
+            if periodic or urgent:
                 revisions = self._revisions(exclude=fid)
             T_world = self.pose(fid)
             if status == TRACKED:
@@ -417,51 +470,135 @@ class Tracker:
         L = abs(self.keyframes[a].odo_m - self.keyframes[b].odo_m)
         return max(p.odom_min_sigma_m, p.odom_sigma_per_m * L), max(p.odom_min_sigma_deg, p.odom_sigma_deg_per_m * L)
 
+    def _loop_candidates(self, new: int, index: bool = True) -> list[int]:
+        """Loop candidates of keyframe ``new`` (:meth:`_close_loops`), nearest first: keyframes at least
+        ``loop_min_gap`` back within ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas, at most
+        ``loop_candidates``. ``index``: found by a KD-tree over the keyframe positions within the largest such
+        radius (that of the first keyframe, furthest along the path), then the exact test; else by a scan of
+        every keyframe (the same list: tested)."""
+        p = self.params
+        n_old = max(0, new - p.loop_min_gap)
+        if n_old == 0 or p.loop_candidates <= 0:
+            return []
+        here = self.keyframes[new].T_world[:3, 3]
+        if index:
+            from scipy.spatial import cKDTree
+
+            old = self.keyframes[:n_old]
+            odo = np.array([k.odo_m for k in old])
+            far = float(np.abs(odo - self.keyframes[new].odo_m).max())  # the largest path length apart
+            reach = p.loop_radius_m + p.loop_sigmas * max(p.odom_min_sigma_m, p.odom_sigma_per_m * far)
+            near = sorted(cKDTree(np.array([k.T_world[:3, 3] for k in old])).query_ball_point(here, reach * (1 + 1e-9)))
+        else:
+            near = range(n_old)
+        dist = {j: float(np.linalg.norm(self.keyframes[j].T_world[:3, 3] - here)) for j in near}
+        ok = [j for j in near if dist[j] <= p.loop_radius_m + p.loop_sigmas * self._loop_sigma(new, j)[0]]
+        return sorted(ok, key=lambda j: (dist[j], j))[: p.loop_candidates]
+
     def _close_loops(self, new: int) -> tuple[list[tuple[int, int]], bool]:
         """Loop edges of keyframe ``new``: (list of (frame id, frame id), whether any needs an optimisation now).
 
-        Candidates: keyframes at least ``loop_min_gap`` back whose estimated position is within
-        ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas (:meth:`_loop_sigma`), nearest first.
+        Candidates (:meth:`_loop_candidates`): keyframes at least ``loop_min_gap`` back whose estimated position
+        is within ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas (:meth:`_loop_sigma`), nearest first.
         Verified by registration from the current estimate; accepted when ``loop_fitness`` of the points
         match within ``loop_max_corr_m`` and the correction of the estimate lies within ``loop_sigmas``
         sigmas (a look-alike place elsewhere needs a larger one)."""
         p = self.params
         cur = self.keyframes[new]
-        n_old = max(0, new - p.loop_min_gap)
-        if n_old == 0 or p.loop_candidates <= 0:
-            return [], False
-        pos = np.array([k.T_world[:3, 3] for k in self.keyframes[:n_old]])
-        dist = np.linalg.norm(pos - cur.T_world[:3, 3], axis=1)
-        sig = [self._loop_sigma(new, j) for j in range(n_old)]
-        near = [j for j in range(n_old) if dist[j] <= p.loop_radius_m + p.loop_sigmas * sig[j][0]]
-        order = sorted(near, key=lambda j: (dist[j], j))[: p.loop_candidates]
         found, urgent = [], False
-        for j in order:
+        for j in self._loop_candidates(new):
             kf = self.keyframes[j]
             init = np.linalg.inv(kf.T_world) @ cur.T_world
-            r = self.reg.align(kf.cloud, cur.cloud, init, p.max_corr_m)
+            target, source = self._cloud(j), self._cloud(new)
+            r = self.reg.align(target, source, init, p.max_corr_m)
             if r.fitness < p.min_fitness or not np.all(np.isfinite(r.T_target_source)):
                 continue
-            r = self.reg.align(kf.cloud, cur.cloud, r.T_target_source, p.loop_max_corr_m)
-            s_m, s_deg = sig[j]
+            r = self.reg.align(target, source, r.T_target_source, p.loop_max_corr_m)
+            s_m, s_deg = self._loop_sigma(new, j)
             if r.fitness < p.loop_fitness or not np.all(np.isfinite(r.T_target_source)) or _differs(
                     init, r.T_target_source, p.loop_sigmas * s_m, p.loop_sigmas * s_deg):
                 continue
-            info = self.reg.information(kf.cloud, cur.cloud, r.T_target_source, p.loop_max_corr_m)
+            info = self.reg.information(target, source, r.T_target_source, p.loop_max_corr_m)
             self._edges.append((new, j, r.T_target_source.copy(), info, True))
             found.append((cur.frame_id, kf.frame_id))
             urgent = urgent or _differs(init, r.T_target_source, p.loop_optimise_m, p.loop_optimise_deg)
         self.loops.extend(found)
         return found, urgent
 
+    def refine(self, revise: bool = True) -> list[tuple[int, np.ndarray]]:
+        """Multiway refinement of the keyframe poses against each other; returns the frames it moved
+        (:attr:`TrackStep.revisions`' form).
+
+        Every keyframe is registered to its ``refine_partners`` nearest older keyframes within
+        ``refine_radius_m`` (a KD-tree over the keyframe positions) from the current estimate, within
+        ``loop_max_corr_m``; a pair that matches ``refine_fitness`` of its points and corrects the estimate by
+        at most ``refine_max_m`` / ``refine_max_deg`` becomes an uncertain edge. The odometry edges are
+        re-registered the same way (kept certain). The graph of those edges (and the loop edges between
+        pairs it did not register) is optimised (:meth:`_optimise`); every frame follows its keyframe."""
+        from scipy.spatial import cKDTree
+
+        p = self.params
+        n = len(self.keyframes)
+        if n < 2:
+            return []
+        pos = np.array([kf.T_world[:3, 3] for kf in self.keyframes])
+        tree = cKDTree(pos)
+        pairs: set[tuple[int, int]] = set()
+        for i in range(1, n):
+            near = tree.query_ball_point(pos[i], p.refine_radius_m)
+            older = sorted((j for j in near if j < i), key=lambda j: (float(np.linalg.norm(pos[i] - pos[j])), j))
+            pairs.update((i, j) for j in older[: p.refine_partners])
+        odometry = {(s, t) for s, t, _, _, unc in self._edges if not unc}
+        edges = []
+        for s, t, T, info, unc in self._edges:
+            if not unc:  # odometry: re-registered at the finer correspondence distance, kept certain
+                a, b = self._cloud(t), self._cloud(s)
+                r = self.reg.align(a, b, T, p.loop_max_corr_m)
+                if r.fitness >= p.refine_fitness and np.all(np.isfinite(r.T_target_source)) and not _differs(
+                        T, r.T_target_source, p.refine_max_m, p.refine_max_deg):
+                    T = r.T_target_source
+                    info = self.reg.information(a, b, T, p.loop_max_corr_m)
+                edges.append((s, t, T, info, False))
+            elif (s, t) not in pairs:
+                edges.append((s, t, T, info, True))
+        for s, t in sorted(pairs - odometry):
+            init = np.linalg.inv(self.keyframes[t].T_world) @ self.keyframes[s].T_world
+            a, b = self._cloud(t), self._cloud(s)
+            r = self.reg.align(a, b, init, p.loop_max_corr_m)
+            if r.fitness < p.refine_fitness or not np.all(np.isfinite(r.T_target_source)) or _differs(
+                    init, r.T_target_source, p.refine_max_m, p.refine_max_deg):
+                continue
+            info = self.reg.information(a, b, r.T_target_source, p.loop_max_corr_m)
+            edges.append((s, t, r.T_target_source.copy(), info, True))
+        self._edges = edges
+        self._optimise()
+        self.refinements += 1
+        return self._revisions(exclude=-1) if revise else []
+
+    def finish(self) -> list[tuple[int, np.ndarray]]:
+        """End of the sequence: the final refinement (:meth:`refine`, when ``refine``); returns every frame
+        it moved by more than ``final_revise_m`` / ``final_revise_deg`` (finer than the online thresholds:
+        the poses handed out are then the refined ones)."""
+        p = self.params
+        if not p.refine or len(self.keyframes) < 2:
+            return []
+        for _ in range(max(1, p.refine_passes)):
+            self.refine(revise=False)
+        return self._revisions(exclude=-1, trans_m=p.final_revise_m, rot_deg=p.final_revise_deg)
+
     def _optimise(self) -> None:
-        """Open3D global optimisation of the keyframe pose graph; keyframe poses updated in place."""
+        """Open3D global optimisation of the keyframe pose graph; keyframe poses updated in place.
+
+        Solved in the first keyframe's frame (it is held fixed): the same relative edges give the same
+        relative poses in any world (a world far from the origin, ``--first-pose``), to rounding."""
         import open3d as o3d
 
         reg = o3d.pipelines.registration
         g = reg.PoseGraph()
+        T0 = self.keyframes[0].T_world.copy()
+        T0_inv = np.linalg.inv(T0)
         for kf in self.keyframes:
-            g.nodes.append(reg.PoseGraphNode(kf.T_world))
+            g.nodes.append(reg.PoseGraphNode(T0_inv @ kf.T_world))
         for s, t, T, info, uncertain in self._edges:
             g.edges.append(reg.PoseGraphEdge(s, t, T, info, uncertain))
         opt = reg.GlobalOptimizationOption(max_correspondence_distance=self.params.loop_max_corr_m,
@@ -469,18 +606,20 @@ class Tracker:
         with open3d_threads(1):  # the same graph gives the same poses, bit for bit
             reg.global_optimization(g, reg.GlobalOptimizationLevenbergMarquardt(),
                                     reg.GlobalOptimizationConvergenceCriteria(), opt)
-        for kf, node in zip(self.keyframes, g.nodes):
-            kf.T_world = np.asarray(node.pose, np.float64).copy()
+        for kf, node in zip(self.keyframes[1:], list(g.nodes)[1:]):
+            kf.T_world = T0 @ np.asarray(node.pose, np.float64)
         self.optimisations += 1
 
-    def _revisions(self, exclude: int) -> list[tuple[int, np.ndarray]]:
+    def _revisions(self, exclude: int, trans_m: float | None = None, rot_deg: float | None = None) -> list[tuple[int, np.ndarray]]:
         p = self.params
+        trans_m = p.revise_trans_m if trans_m is None else trans_m
+        rot_deg = p.revise_rot_deg if rot_deg is None else rot_deg
         out = []
         for fid in sorted(self._placed):
             if fid == exclude:
                 continue
             T = self.pose(fid)
-            if _differs(self._committed[fid], T, p.revise_trans_m, p.revise_rot_deg):
+            if _differs(self._committed[fid], T, trans_m, rot_deg):
                 self._committed[fid] = T.copy()
                 out.append((fid, T))
         if self._last is not None and self._last[0] in self._placed:
@@ -488,8 +627,10 @@ class Tracker:
         return out
 
     def summary(self) -> dict:
-        """Counts of the run so far: keyframes, loop closures, optimisations, lost and relocalised frames."""
+        """Counts of the run so far: keyframes, loop closures, optimisations, refinements, lost and relocalised
+        frames, the keyframe store (:meth:`memory`)."""
         return {"keyframes": len(self.keyframes), "keyframe_ids": [k.frame_id for k in self.keyframes],
                 "loop_closures": [list(x) for x in self.loops], "optimisations": self.optimisations,
+                "refinements": self.refinements, "keyframe_store": self.memory(),
                 "lost_frames": list(self.lost), "relocalised_frames": list(self.relocalised),
                 "params": dataclasses.asdict(self.params), "stride": self.stride}
