@@ -5,7 +5,7 @@ are compared under the same load (docs/mapping.md, "Revise at building scale").
     python scripts/export_ab.py MAP OUT [--arms new,old,new,old] [--block 64]
 
 An arm is ``new`` (the export as it is) or ``old`` (as it was before the changes of 2026-12-03: the GSC steps
-by the scipy formulation, ``gsc.iterate_scipy``, instead of compiled, ``gsc._iterate``, and each slab's cubes
+by the scipy formulation, ``gsc.iterate_scipy``, instead of compiled, ``gsc_kernels.iterate``, and each slab's cubes
 found by ``np.unique(..., axis=0)`` instead of ``gsc._unique_pairs``), with an optional cube edge:
 ``new@128`` (default ``--block``). MAP is only
 read; each arm writes OUT/ARM/. Prints one JSON line an arm; compare the arms' bytes with ``cmp``.
@@ -39,12 +39,13 @@ def main() -> None:
     setup()  # the heap settings every command runs with
     import panovocc_cli.mapping.export as export
     import panovocc_cli.semantics.gsc as gsc
+    import panovocc_cli.semantics.gsc_kernels as kernels
     from panovocc_cli.mapping import Mapper
     from panovocc_cli.mapping.pipeline import load_config, write_exports
 
     import numpy as np
 
-    compiled, pairs = gsc._iterate, gsc._unique_pairs
+    compiled, pairs = kernels.iterate, gsc._unique_pairs
     default_block = export.BLOCK if args.block is None else args.block
     mapper = Mapper.load(args.map)
     color = load_config(args.map).semantic.ply_color
@@ -53,7 +54,7 @@ def main() -> None:
             kind, _, block = arm.partition("@")
             if kind not in ("new", "old"):
                 raise SystemExit(f"arm {arm!r}: expected new or old, optionally @BLOCK")
-            gsc._iterate = compiled if kind == "new" else gsc.iterate_scipy
+            kernels.iterate = compiled if kind == "new" else gsc.iterate_scipy
             gsc._unique_pairs = pairs if kind == "new" else (lambda a, b: np.unique(np.stack([a, b], 1), axis=0))
             export.BLOCK = int(block) if block else default_block
             out = args.out / arm
@@ -67,7 +68,7 @@ def main() -> None:
                               "cpu_s": round(time.process_time() - c0, 1),
                               "peak_above_loaded_mb": round(_status_mb("VmHWM") - before, 1)}), flush=True)
     finally:
-        gsc._iterate, gsc._unique_pairs = compiled, pairs
+        kernels.iterate, gsc._unique_pairs = compiled, pairs
         mapper.close()
 
 

@@ -16,7 +16,7 @@ Rows are normalised (``W_bar = D^-1 W``) and the anchored diffusion
 
     q^(k+1)_i = (rho_i p_i + lambda_s sum_j W_bar_ij q^(k)_j) / (rho_i + lambda_s sum_j W_bar_ij),  q^(0) = p
 
-runs a fixed ``iterations`` times in float32 on a scipy CSR matrix (the steps compiled: :func:`_iterate`). The anchor
+runs a fixed ``iterations`` times in float32 on a scipy CSR matrix (the steps compiled: :func:`.gsc_kernels.iterate`). The anchor
 ``rho_i = (1 - H(p_i) / log C) * S_i / (S_i + S0)`` is strong for confident, well-observed voxels and 0
 for voxels without evidence (S = 0), which therefore take their neighbours' distribution.
 
@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
@@ -267,12 +266,14 @@ def _diffuse_sorted(idx, p, S, g, normals, colors, params: GSCParams) -> np.ndar
     live = denom > 0
     inv = np.where(live, 1.0 / np.where(live, denom, 1.0), 0.0).astype(np.float32)[:, None]
     anchor = rho[:, None] * p
-    return _iterate(Wb.indptr, Wb.indices, Wb.data, p.copy(), np.ascontiguousarray(anchor, np.float32),
+    from .gsc_kernels import iterate  # numba: compiled only when a map is labelled, not for --help
+
+    return iterate(Wb.indptr, Wb.indices, Wb.data, p.copy(), np.ascontiguousarray(anchor, np.float32),
                     np.ascontiguousarray(inv[:, 0]), live, lam, int(params.iterations))
 
 
 def iterate_scipy(indptr, indices, data, q, anchor, inv, live, lam, iterations):
-    """:func:`_iterate` as it was written before it was compiled: scipy's CSR product, then ``*= lam``,
+    """:func:`.gsc_kernels.iterate` as it was written before it was compiled: scipy's CSR product, then ``*= lam``,
     ``+= anchor``, ``*= inv``, copied into the live rows (in place into ``q``). Kept as the reference the
     compiled iterations are tested against bit for bit and measured beside (``scripts/export_ab.py``)."""
     import scipy.sparse as sp
@@ -286,36 +287,6 @@ def iterate_scipy(indptr, indices, data, q, anchor, inv, live, lam, iterations):
         nxt *= np.asarray(inv, np.float32)[:, None]
         np.copyto(q, nxt, where=where)
     return q
-
-
-@nb.njit(cache=True)
-def _iterate(indptr, indices, data, q, anchor, inv, live, lam, iterations):
-    """``iterations`` steps of ``q <- (anchor + lam (W_bar q)) inv`` on the live rows (the others keep q), W_bar
-    a CSR matrix (indptr, indices, data) float32: each step in one pass over the rows, into a second buffer.
-    The same float32 operations in the same order as scipy's CSR product (``Wb @ q``: each row's entries
-    added in stored order to a row of zeros) followed by ``*= lam``, ``+= anchor``, ``*= inv``, so the result
-    is the same bit for bit (tests/semantics/test_gsc.py); the product's (n, C) temporary and the three
-    passes over it are gone."""
-    n, c = q.shape
-    a = q
-    b = np.empty_like(q)
-    for _ in range(iterations):
-        for i in range(n):
-            if live[i]:
-                for k in range(c):
-                    b[i, k] = np.float32(0.0)
-                for jj in range(indptr[i], indptr[i + 1]):
-                    w = data[jj]
-                    j = indices[jj]
-                    for k in range(c):
-                        b[i, k] += w * a[j, k]
-                for k in range(c):
-                    b[i, k] = (b[i, k] * lam + anchor[i, k]) * inv[i]
-            else:
-                for k in range(c):
-                    b[i, k] = a[i, k]
-        a, b = b, a
-    return a
 
 
 def transfer_offsets(max_dist_vox: float) -> np.ndarray:

@@ -185,12 +185,13 @@ def test_voxels_in_key_order_skip_the_sorted_copies_with_the_same_result():
 
 
 def test_compiled_iterations_equal_the_scipy_product_bit_for_bit():
-    """The diffusion's iterations run in one compiled pass a step (gsc._iterate); they give the same float32
+    """The diffusion's iterations run in one compiled pass a step (gsc_kernels.iterate); they give the same float32
     distributions, bit for bit, as the formulation they replaced (scipy's CSR product, then ``*= lam``,
     ``+= anchor``, ``*= inv``, copied into the live rows), with rows of no edges, dead rows and zero weights."""
     import scipy.sparse as sp
 
-    from panovocc_cli.semantics.gsc import _iterate, iterate_scipy
+    from panovocc_cli.semantics.gsc import iterate_scipy
+    from panovocc_cli.semantics.gsc_kernels import iterate as _iterate
 
     rng = np.random.default_rng(7)
     n, c = 3000, 12
