@@ -117,6 +117,17 @@ def available_memory() -> int:
         return 1 << 62
 
 
+def process_status_mb(field: str) -> float:
+    """This process's ``field`` of /proc/self/status (``VmRSS``, ``VmHWM``: the peak), in MB; the measuring
+    scripts' one reader (scripts/export_ab.py, export_rss.py, memory_save_peak.py)."""
+    from pathlib import Path
+
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024  # kB -> MB
+    raise RuntimeError(f"/proc/self/status has no {field}")
+
+
 def check_memory(need: float, what: str, advice: str, path=None) -> None:
     """Refuse work whose memory estimate does not fit: one line, before anything is allocated or written.
 

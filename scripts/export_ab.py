@@ -19,13 +19,6 @@ import time
 from pathlib import Path
 
 
-def _status_mb(field: str) -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("map", type=Path)
@@ -34,7 +27,7 @@ def main() -> None:
     ap.add_argument("--block", type=int, default=None, help="GSC cube edge, voxels (default: the export's)")
     args = ap.parse_args()
 
-    from panovocc_cli.runtime import release_freed_heap, setup
+    from panovocc_cli.runtime import process_status_mb, release_freed_heap, setup
 
     setup()  # the heap settings every command runs with
     import panovocc_cli.mapping.export as export
@@ -61,12 +54,12 @@ def main() -> None:
             out.mkdir(parents=True, exist_ok=True)
             release_freed_heap()
             Path("/proc/self/clear_refs").write_text("5")  # the peak (VmHWM) restarts from the resident memory now
-            before = _status_mb("VmRSS")
+            before = process_status_mb("VmRSS")
             t0, c0 = time.perf_counter(), time.process_time()
             write_exports(out, mapper, color)
             print(json.dumps({"arm": arm, "block": export.BLOCK, "wall_s": round(time.perf_counter() - t0, 1),
                               "cpu_s": round(time.process_time() - c0, 1),
-                              "peak_above_loaded_mb": round(_status_mb("VmHWM") - before, 1)}), flush=True)
+                              "peak_above_loaded_mb": round(process_status_mb("VmHWM") - before, 1)}), flush=True)
     finally:
         kernels.iterate, gsc._unique_pairs = compiled, pairs
         mapper.close()

@@ -20,13 +20,6 @@ import time
 from pathlib import Path
 
 
-def _status_mb(field: str) -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("map", type=Path)
@@ -34,7 +27,7 @@ def main() -> None:
     ap.add_argument("--block", type=int, default=None, help="GSC cube edge, voxels (default: the export's)")
     args = ap.parse_args()
 
-    from panovocc_cli.runtime import release_freed_heap, setup
+    from panovocc_cli.runtime import process_status_mb, release_freed_heap, setup
 
     setup()  # the heap settings every command runs with
     import panovocc_cli.mapping.export as export
@@ -50,11 +43,11 @@ def main() -> None:
     held = sum(mapper.memory.nbytes().values()) / 2 ** 20
     release_freed_heap()
     Path("/proc/self/clear_refs").write_text("5")  # the peak (VmHWM) restarts from the resident memory now
-    before = _status_mb("VmRSS")
+    before = process_status_mb("VmRSS")
     t0 = time.perf_counter()
     summary = write_exports(args.out, mapper, load_config(args.map).semantic.ply_color)
     seconds = time.perf_counter() - t0
-    peak = _status_mb("VmHWM")
+    peak = process_status_mb("VmHWM")
     mapper.close()
     print(json.dumps({"memory_held_mb": round(held, 1), "rss_before_export_mb": round(before, 1),
                       "peak_rss_export_mb": round(peak, 1), "export_above_loaded_mb": round(peak - before, 1),

@@ -20,13 +20,6 @@ import time
 from pathlib import Path
 
 
-def _status(field: str) -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1]) / 1024  # kB -> MB
-    raise RuntimeError(f"/proc/self/status has no {field}")
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("map", type=Path)
@@ -36,7 +29,7 @@ def main() -> None:
 
     from panovocc_cli.io import mapstore
     from panovocc_cli.mapping.memory import Delta, VoxelMemory
-    from panovocc_cli.runtime import release_freed_heap
+    from panovocc_cli.runtime import process_status_mb, release_freed_heap
 
     if (args.out / mapstore.MEMORY_NAME).exists():
         raise SystemExit(f"{args.out / mapstore.MEMORY_NAME}: exists (give an empty folder)")
@@ -55,13 +48,13 @@ def main() -> None:
         mapstore.write_memory(tmp, tiny.to_arrays(sparse=True) if args.whole else tiny.chunked(), 1, np.eye(4)[None])
     release_freed_heap()
     Path("/proc/self/clear_refs").write_text("5")  # the peak (VmHWM) starts again from the current RSS
-    rss0 = _status("VmRSS")
+    rss0 = process_status_mb("VmRSS")
     args.out.mkdir(parents=True, exist_ok=True)
     t0, c0 = time.perf_counter(), time.process_time()
     source = memory.to_arrays(sparse=True) if args.whole else memory.chunked()
     mapstore.write_memory(args.out, source, done, poses, ids)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    peak = _status("VmHWM")
+    peak = process_status_mb("VmHWM")
     sha = hashlib.sha256((args.out / mapstore.MEMORY_NAME).read_bytes()).hexdigest()
     print(json.dumps({"form": "whole" if args.whole else "streamed", "rss_after_load_mb": round(rss0, 1),
                       "peak_mb": round(peak, 1), "peak_above_load_mb": round(peak - rss0, 1),

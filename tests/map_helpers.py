@@ -14,3 +14,20 @@ def load_memory(out):
         return mapper.memory, len(ids), poses
     finally:
         mapper.close()
+
+
+def random_semantic_channels(ch: dict, n: int, seed: int):
+    """``ch`` (a hand-made memory's geometry channels over ``n`` keys) with seeded random semantic channels
+    (E over three words, S, normals, colours, counts) and the export's semantic settings (GSC on): what the
+    incremental-export tests of the neighbour rules (tests/mapping/test_spill.py, test_face_resolve.py) label.
+    Returns (channels, vocabulary, semantic settings)."""
+    from types import SimpleNamespace
+
+    from panovocc_cli.semantics.gsc import GSCParams
+
+    rng = np.random.default_rng(seed)
+    S = rng.integers(1, 5000, n)
+    ch = dict(ch, E=(rng.dirichlet(np.ones(3), n) * S[:, None]).astype(np.int64), S=S[:, None],
+              normal_sum=rng.integers(-99, 99, (n, 3)), rgb_sum=rng.integers(0, 9000, (n, 3)),
+              count=rng.integers(1, 40, (n, 1)))
+    return ch, ["wall", "floor", "chair"], SimpleNamespace(use_gsc=True, gsc=GSCParams())

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from map_helpers import random_semantic_channels
 
 import panovocc_cli.mapping.export as export
 from panovocc_cli.errors import PanovoccError
@@ -186,19 +187,11 @@ def test_a_map_made_before_the_thinning_exports_without_it(tmp_path):
 def test_incremental_export_with_the_thinning_equals_a_full_one(monkeypatch, seed):
     """A voxel's thinning reads its face neighbours, so a change at one voxel can thin or restore the next:
     the incremental export (previous grid + changed keys) still equals the full one bit for bit."""
-    from types import SimpleNamespace
-
-    from panovocc_cli.semantics.gsc import GSCParams
-
     monkeypatch.setattr(export, "BLOCK", 4)
     keys, ch, sets = _scene()
-    rng = np.random.default_rng(seed)
-    n, vocab = len(keys), ["wall", "floor", "chair"]
-    S = rng.integers(1, 5000, n)
-    ch = dict(ch, E=(rng.dirichlet(np.ones(3), n) * S[:, None]).astype(np.int64), S=S[:, None],
-              normal_sum=rng.integers(-99, 99, (n, 3)), rgb_sum=rng.integers(0, 9000, (n, 3)),
-              count=rng.integers(1, 40, (n, 1)))
-    sem = SimpleNamespace(use_gsc=True, gsc=GSCParams())
+    n = len(keys)
+    ch, vocab, sem = random_semantic_channels(ch, n, seed)
+    rng = np.random.default_rng(seed + 100)
     before = export_memory(keys, ch, 0.08, ON, vocab, sem)
     # the surface layers lose support at a few voxels: the spill beside them is no longer thinned
     surf = np.flatnonzero(np.isin(keys, np.concatenate([sets["smear_surface"], sets["between_surfaces"]])))
