@@ -31,3 +31,12 @@ def random_semantic_channels(ch: dict, n: int, seed: int):
               normal_sum=rng.integers(-99, 99, (n, 3)), rgb_sum=rng.integers(0, 9000, (n, 3)),
               count=rng.integers(1, 40, (n, 1)))
     return ch, ["wall", "floor", "chair"], SimpleNamespace(use_gsc=True, gsc=GSCParams())
+
+
+def sorted_scene(keys: list, ch: dict, sets: dict):
+    """A hand-made memory built as lists of key arrays and per-channel row arrays, in key order: (keys,
+    channels, sets), the keys asserted distinct (tests/mapping/test_spill.py, test_face_resolve.py)."""
+    keys = np.concatenate(keys)
+    order = np.argsort(keys)
+    assert len(np.unique(keys)) == len(keys)
+    return keys[order], {c: np.concatenate(v)[order] for c, v in ch.items()}, sets

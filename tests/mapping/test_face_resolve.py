@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 from box_room import box_depth
-from map_helpers import random_semantic_channels
+from map_helpers import random_semantic_channels, sorted_scene
 
 import panovocc_cli.mapping.export as export
 from panovocc_cli.geometry.lattice import index_to_center, pack_keys, unpack_keys
@@ -112,10 +112,7 @@ def _scene():
             rows["P"][:] = 0
         for c, v in rows.items():
             ch[c].append(v)
-    keys = np.concatenate(keys)
-    order = np.argsort(keys)
-    assert len(np.unique(keys)) == len(keys)
-    return keys[order], {c: np.concatenate(v)[order] for c, v in ch.items()}, sets
+    return sorted_scene(keys, ch, sets)
 
 
 def _occupied(keys, ch, p):

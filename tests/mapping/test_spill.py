@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from map_helpers import random_semantic_channels
+from map_helpers import random_semantic_channels, sorted_scene
 
 import panovocc_cli.mapping.export as export
 from panovocc_cli.errors import PanovoccError
@@ -66,10 +66,7 @@ def _scene():
         keys.append(k)
         for c, v in _rows(idx, hits, per_hit, free).items():
             ch[c].append(v)
-    keys = np.concatenate(keys)
-    order = np.argsort(keys)
-    assert len(np.unique(keys)) == len(keys)
-    return keys[order], {c: np.concatenate(v)[order] for c, v in ch.items()}, sets
+    return sorted_scene(keys, ch, sets)
 
 
 def _occupied(keys, ch, p):
