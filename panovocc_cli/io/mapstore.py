@@ -516,7 +516,7 @@ def write_memory(folder: str | Path, arrays, frames_done: int, poses: np.ndarray
     out["poses"] = np.asarray(poses, np.float64).reshape(-1, 4, 4)
     if frame_ids is not None:
         out["frame_ids"] = np.asarray(frame_ids, np.int64)
-    write_npz(Path(folder) / MEMORY_NAME, out, compresslevel=MEMORY_COMPRESSLEVEL)
+    write_npz(Path(folder) / MEMORY_NAME, out, compresslevel=MEMORY_COMPRESSLEVEL, threaded=True)
 
 
 def read_memory(folder: str | Path, sparse: bool = False) -> tuple[dict, int, np.ndarray, np.ndarray | None]:

@@ -4,7 +4,9 @@ Files stay readable by ``np.load(path, allow_pickle=False)``."""
 
 from __future__ import annotations
 
+import threading
 import zipfile
+from collections import deque
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, NamedTuple
 
@@ -25,44 +27,182 @@ class StreamedArray(NamedTuple):
     pieces: Callable[[], Iterable[np.ndarray]]
 
 
-def _write_streamed(f, name: str, arr: StreamedArray) -> None:
+PIPE_BYTES = 1 << 25  # bytes a threaded write_npz holds queued for its writer thread at most (32 MiB)
+
+
+class _EntryPipe:
+    """The zip entries of one archive opened, filled and closed on a second thread, in the order given:
+    the caller produces an entry's bytes (numpy work that holds the GIL) while this thread computes the
+    CRC, compresses and writes the ones before (zlib and file writes release the GIL). At most
+    ``limit`` bytes wait in the queue (one piece more if a single piece is larger). The archive is the
+    same, byte for byte, as entries written in the caller's thread: the same calls, in the same order.
+    A failure on the writer thread is raised by the next call (or :meth:`finish`)."""
+
+    def __init__(self, zf: zipfile.ZipFile, limit: int = PIPE_BYTES):
+        self._zf, self._limit = zf, int(limit)
+        self._jobs: deque = deque()
+        self._queued = 0
+        self._done = False
+        self._error: BaseException | None = None
+        self._cv = threading.Condition()
+        self._thread = threading.Thread(target=self._run, name="write_npz", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        f = None
+        while True:
+            with self._cv:
+                while not self._jobs and not self._done:
+                    self._cv.wait()
+                if not self._jobs:
+                    break
+                kind, data, size = self._jobs[0]
+            try:
+                if self._error is None:
+                    if kind == "open":
+                        f = self._zf.open(data, "w", force_zip64=True)
+                    elif kind == "write":
+                        f.write(data)
+                    else:
+                        f, g = None, f
+                        g.close()
+            except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
+                self._error = e
+            with self._cv:
+                self._jobs.popleft()
+                self._queued -= size
+                self._cv.notify_all()
+        if f is not None:  # an abandoned archive: its open entry is closed so that the archive can be
+            try:  # closed too (and the caller's error raised, not zipfile's)
+                f.close()
+            except BaseException:  # noqa: BLE001 - the archive is being abandoned
+                pass
+
+    def _put(self, kind: str, data=None, size: int = 0) -> None:
+        with self._cv:
+            while self._queued > 0 and self._queued + size > self._limit and self._error is None:
+                self._cv.wait()
+            self._raise()
+            self._jobs.append((kind, data, size))
+            self._queued += size
+            self._cv.notify_all()
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def open(self, info: zipfile.ZipInfo) -> None:
+        self._put("open", info)
+
+    def write(self, data) -> None:
+        """Queue ``data`` (bytes, or a buffer that nothing changes afterwards) for the open entry."""
+        self._put("write", data, memoryview(data).nbytes)
+
+    def close_entry(self) -> None:
+        self._put("close")
+
+    def finish(self, ok: bool = True) -> None:
+        """Wait for the queued jobs (``ok=False``: drop them, the archive is being abandoned), stop the
+        thread and raise its failure if any."""
+        with self._cv:
+            if not ok:
+                self._jobs = deque(self._jobs and [self._jobs[0]])  # the job in progress finishes
+            self._done = True
+            self._cv.notify_all()
+        self._thread.join()
+        if ok:
+            self._raise()
+
+
+def _array_buffers(f_write, arr: np.ndarray) -> None:
+    """``np.lib.format.write_array(f, arr)``'s bytes for a C-contiguous array, given to ``f_write`` as
+    slices of the array's own memory (no copy): its 1.0 header, then the data in pieces of
+    :data:`_PIECE` bytes."""
+    from io import BytesIO
+
+    head = BytesIO()
+    np.lib.format.write_array_header_1_0(head, np.lib.format.header_data_from_array_1_0(arr))
+    f_write(head.getvalue())
+    data = arr.reshape(-1).view(np.uint8)
+    for a in range(0, len(data), _PIECE):
+        f_write(data[a:a + _PIECE])
+
+
+_PIECE = 1 << 22  # bytes of an array's data given to the writer thread at a time
+
+
+def _write_streamed(write, name: str, arr: StreamedArray) -> None:
     dtype = np.dtype(arr.dtype)
-    np.lib.format.write_array_header_1_0(f, {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
-                                             "shape": tuple(int(x) for x in arr.shape)})  # write_array's header
+    header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+              "shape": tuple(int(x) for x in arr.shape)}
+    from io import BytesIO
+
+    head = BytesIO()
+    np.lib.format.write_array_header_1_0(head, header)  # write_array's header
+    write(head.getvalue())
     want, got = int(np.prod(arr.shape, dtype=np.int64)) * dtype.itemsize, 0
     for piece in arr.pieces():
         piece = np.ascontiguousarray(piece)
         if piece.dtype != dtype:
             raise TypeError(f"write_npz: entry {name!r} got a {piece.dtype} piece, expected {dtype}")
         if piece.nbytes:
-            f.write(memoryview(piece.reshape(-1)).cast("B"))
+            write(memoryview(piece.reshape(-1)).cast("B"))
         got += piece.nbytes
     if got != want:
         raise ValueError(f"write_npz: entry {name!r} got {got} bytes, expected {want}")
 
 
 def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray], compress: bool = True,
-              compresslevel: int | None = None) -> None:
+              compresslevel: int | None = None, threaded: bool = False) -> None:
     """Atomically write ``arrays`` to ``path`` as a ``.npz`` with byte-for-byte reproducible content.
 
     Object arrays are refused (nothing in the toolkit's files needs pickle). ``compresslevel`` (1-9, default
-    zlib's 6) trades size for speed. A :class:`StreamedArray` value is written piece by piece.
+    zlib's 6) trades size for speed. A :class:`StreamedArray` value is written piece by piece (its pieces
+    must not be changed once yielded). ``threaded``: the entries are compressed and written on a second
+    thread while the next ones' data are produced (:class:`_EntryPipe`; at most :data:`PIPE_BYTES` queued),
+    to the same bytes.
     """
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
     with atomic_path(path, suffix=".npz") as tmp:
         with zipfile.ZipFile(tmp, "w", compression=method, allowZip64=True, compresslevel=compresslevel) as zf:
-            for name in sorted(arrays):
-                arr = arrays[name] if isinstance(arrays[name], StreamedArray) else np.asanyarray(arrays[name])
-                if np.dtype(arr.dtype).hasobject:
-                    raise TypeError(f"write_npz: array {name!r} has object dtype")
-                info = zipfile.ZipInfo(f"{name}.npy", date_time=_FIXED_DATE)
-                info.compress_type = method
-                # ZipFile.open(ZipInfo) ignores the archive's compresslevel: the entry carries its own
-                # (``_compresslevel`` up to Python 3.12, ``compress_level`` from 3.13)
-                setattr(info, "compress_level" if hasattr(info, "compress_level") else "_compresslevel", compresslevel)
-                info.external_attr = 0o644 << 16
-                with zf.open(info, "w", force_zip64=True) as f:
+            pipe = _EntryPipe(zf) if threaded else None
+            try:
+                for name in sorted(arrays):
+                    arr = arrays[name] if isinstance(arrays[name], StreamedArray) else np.asanyarray(arrays[name])
+                    if np.dtype(arr.dtype).hasobject:
+                        raise TypeError(f"write_npz: array {name!r} has object dtype")
+                    info = zipfile.ZipInfo(f"{name}.npy", date_time=_FIXED_DATE)
+                    info.compress_type = method
+                    # ZipFile.open(ZipInfo) ignores the archive's compresslevel: the entry carries its own
+                    # (``_compresslevel`` up to Python 3.12, ``compress_level`` from 3.13)
+                    setattr(info, "compress_level" if hasattr(info, "compress_level") else "_compresslevel",
+                            compresslevel)
+                    info.external_attr = 0o644 << 16
+                    if pipe is None:
+                        with zf.open(info, "w", force_zip64=True) as f:
+                            if isinstance(arr, StreamedArray):
+                                _write_streamed(f.write, name, arr)
+                            else:
+                                np.lib.format.write_array(f, arr, allow_pickle=False)
+                        continue
+                    pipe.open(info)
                     if isinstance(arr, StreamedArray):
-                        _write_streamed(f, name, arr)
-                    else:
-                        np.lib.format.write_array(f, arr, allow_pickle=False)
+                        _write_streamed(pipe.write, name, arr)
+                    elif type(arr) is np.ndarray and arr.flags.c_contiguous:
+                        _array_buffers(pipe.write, arr)  # the array's own memory: no copy
+                    else:  # write_array's own pieces (copies) of an array in another layout
+                        np.lib.format.write_array(_Forward(pipe.write), arr, allow_pickle=False)
+                    pipe.close_entry()
+            except BaseException:
+                if pipe is not None:
+                    pipe.finish(ok=False)
+                raise
+            if pipe is not None:
+                pipe.finish()
+
+
+class _Forward:
+    """A write-only file object that hands what it is given to ``write``."""
+
+    def __init__(self, write):
+        self.write = write

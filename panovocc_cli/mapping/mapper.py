@@ -41,7 +41,7 @@ import dataclasses
 import functools
 import threading
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -323,10 +323,60 @@ class Mapper:
         when an observation is kept). ``frame``: the frame's data when the caller already has it (read
         ahead: ``panovocc revise``); its pose and logits are ignored.
         """
+        job = self._revision(frame_id, T_world_cam, frame)
+        if job is not None:
+            self._swap(*job)
+        return job is not None
+
+    @_locked
+    def revise_many(self, revisions: Iterable[tuple], done: Callable[[int], None] | None = None) -> int:
+        """:meth:`revise` of each ``(frame_id, T_world_cam, frame or None)`` in order, frame ``i + 1``'s delta
+        computed while frame ``i``'s is swapped into the memory on a second thread (the memory's kernels
+        release the GIL; ``panovocc revise``). The same calls in the same order as a loop of :meth:`revise`:
+        the same memory, records and failures (a frame listed again waits for its previous swap).
+        ``done(frame_id)`` is called once a frame's swap is made. Returns the number of frames revised."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        pending = None  # (frame id, future) of the swap in progress
+        count = 0
+
+        def finish():
+            nonlocal pending, count
+            fid, fut = pending
+            pending = None
+            fut.result()  # a refused sum or a failed delta write is raised here, in order
+            count += 1
+            if done is not None:
+                done(fid)
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise")
+        try:
+            for fid, T, frame in revisions:
+                if pending is not None and pending[0] == int(fid):
+                    finish()
+                try:
+                    job = self._revision(fid, T, frame)
+                except BaseException:
+                    if pending is not None:
+                        finish()  # the earlier frame's failure first, as a loop of revise would raise it
+                    raise
+                if pending is not None:
+                    finish()
+                if job is not None:
+                    pending = (job[0], pool.submit(self._swap, *job))
+            if pending is not None:
+                finish()
+        finally:
+            pool.shutdown(wait=True)  # a failure in the caller's thread waits for the swap in progress
+        return count
+
+    def _revision(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None):
+        """What revising frame ``frame_id`` swaps in: (id, new delta, pose, kept delta, frame), or None when
+        the pose is unchanged. Reads the map's state only through the delta store (not the memory)."""
         fid = int(frame_id)
         T = check_rigid(T_world_cam, f"frame {fid}: T_world_cam")
         if np.array_equal(T, self.pose(fid)):
-            return False
+            return None
         if frame is None:
             frame = self._frames.get(fid)
         if frame is None:
@@ -335,10 +385,12 @@ class Mapper:
             frame = self.frame_source(fid)
         old = self._rpu.store.get(fid)
         frame = dataclasses.replace(frame, T_world_cam=T)
-        self._rpu.revise(fid, self._delta(frame, old.observation), T, old=old)
+        return fid, self._delta(frame, old.observation), T, old, frame
+
+    def _swap(self, fid: int, delta: FrameDelta, T: np.ndarray, old: FrameDelta, frame: Frame) -> None:
+        self._rpu.revise(fid, delta, T, old=old)
         if fid in self._frames:
             self._frames[fid] = frame
-        return True
 
     @_locked
     def remove(self, frame_id: int) -> None:

@@ -270,7 +270,7 @@ def _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots
     return slot, n_blocks
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # releases the GIL: Mapper.revise_many swaps on a second thread
 def _add_dense(table_keys, table_slots, block_keys, n_blocks, geo, keys, vals, cols, sign, start, lo, hi):
     """Add ``sign * vals[:, c]`` into column ``cols[c]`` (< 0: skipped) of the dense storage at ``keys``.
 
@@ -297,7 +297,7 @@ def _add_dense(table_keys, table_slots, block_keys, n_blocks, geo, keys, vals, c
     return 0, keys.shape[0], n_blocks
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # releases the GIL: Mapper.revise_many swaps on a second thread
 def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n_pages, rows, n_rows,
                 keys, vals, cols, sign, start, lo, hi):
     """Like :func:`_add_dense` for the sparse group: a voxel gets a row (and its block a page of row
@@ -344,7 +344,7 @@ def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n
     return 0, keys.shape[0], n_blocks, n_pages, n_rows
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # releases the GIL: Mapper.revise_many swaps on a second thread
 def _difference(ka, va, kb, vb):
     """``vb - va`` over the union of sorted unique keys ``ka`` (na,) and ``kb`` (nb,) (values (n, m) int64, a
     row absent from one side counting as zeros): (ok, keys (n,), values (n, m)); ok False when a difference

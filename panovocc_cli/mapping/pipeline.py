@@ -686,9 +686,9 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         # opening cuts off
         try:
             bar = tqdm(total=len(changed), desc="revise", unit="frame", file=sys.stderr, disable=not progress)
-            for i, frame in prefetched(reader, changed):  # frame i + 1 is read while frame i is revised
-                mapper.revise(i, new_poses[i], frame=frame)
-                bar.update(1)
+            # frame i + 1 is read while frame i is revised, and its delta computed while frame i's is swapped in
+            mapper.revise_many(((i, new_poses[i], frame) for i, frame in prefetched(reader, changed)),
+                               done=lambda _: bar.update(1))
             bar.close()
             mapper.save(out)
         except BaseException:

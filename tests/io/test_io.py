@@ -318,3 +318,67 @@ def test_common_divisor_of_a_channel_stops_reading_once_it_is_one(monkeypatch):
     monkeypatch.setattr(mapstore, "_gcd_reduce", lambda b: (seen.append(b.size), real(b))[1])
     assert mapstore.common_divisor(rng.integers(0, 1000, (1_000_000, 4))) == 1
     assert sum(seen) < 100_000
+
+
+def _npz_arrays(rng):
+    """Entries of every kind write_npz meets: C- and F-ordered arrays, a strided view, 0-d values, strings,
+    booleans, an empty array, and streamed entries of many pieces (one of them larger than the queue)."""
+    from panovocc_cli.io.npz import StreamedArray
+
+    big = rng.integers(-2 ** 40, 2 ** 40, size=(300, 700))
+    ramp = np.arange(3_000_000, dtype=np.int64) // 7  # compressible, 24 MB: several pieces
+    return {"c": big, "f": np.asfortranarray(big[:, :50]), "strided": big[::3, 1::2], "scalar": np.float64(0.08),
+            "names": np.array(["A", "E", "normal_sum"]), "mask": big[:40] > 0, "empty": np.zeros((0, 4), np.int32),
+            "ramp": ramp, "streamed": StreamedArray(np.int64, ramp.shape, lambda: (ramp[a:a + 77_777] for a in
+                                                                                 range(0, len(ramp), 77_777))),
+            "planes": StreamedArray(np.uint8, (5, 1000), lambda: (np.full(1000, b, np.uint8) for b in range(5)))}
+
+
+@pytest.mark.parametrize("limit", [1 << 25, 1000])
+def test_npz_written_on_a_second_thread_has_the_same_bytes(tmp_path, monkeypatch, limit):
+    """``write_npz(threaded=True)`` (memory.npz: entries compressed on a writer thread while the next ones
+    are produced) writes the same bytes as the serial writer, whatever the queue's bound, and reads back."""
+    from panovocc_cli.io import npz
+
+    arrays = _npz_arrays(np.random.default_rng(3))
+    npz.write_npz(tmp_path / "serial.npz", arrays, compresslevel=1)
+    monkeypatch.setattr(npz, "PIPE_BYTES", limit)
+    npz.write_npz(tmp_path / "threaded.npz", arrays, compresslevel=1, threaded=True)
+    assert (tmp_path / "threaded.npz").read_bytes() == (tmp_path / "serial.npz").read_bytes()
+    with np.load(tmp_path / "threaded.npz", allow_pickle=False) as z:
+        np.testing.assert_array_equal(z["f"], arrays["f"])
+        np.testing.assert_array_equal(z["streamed"], arrays["ramp"])
+        assert z["f"].flags.f_contiguous and list(z["names"]) == ["A", "E", "normal_sum"]
+
+
+def test_a_threaded_npz_write_that_fails_leaves_nothing(tmp_path, monkeypatch):
+    """A failure while an entry is produced (the caller's thread) or written (the writer thread: disk full)
+    is raised (an OSError as io.atomic's one line), the writer thread stops, and no file is left."""
+    import threading
+    import zipfile
+
+    from panovocc_cli.io import npz
+
+    def broken():
+        yield np.zeros(10, np.int64)
+        raise RuntimeError("produce failed")
+
+    arrays = _npz_arrays(np.random.default_rng(4))
+    with pytest.raises(RuntimeError, match="produce failed"):
+        npz.write_npz(tmp_path / "a.npz", {**arrays, "p": npz.StreamedArray(np.int64, (20,), broken)}, threaded=True)
+    assert not list(tmp_path.iterdir())
+    real_open = zipfile.ZipFile.open
+
+    def full_disk(self, info, mode="r", **kw):
+        f = real_open(self, info, mode, **kw)
+        if mode == "w" and info.filename == "ramp.npy":
+            def fail(data):
+                raise OSError(28, "No space left on device")
+            f.write = fail
+        return f
+
+    monkeypatch.setattr(zipfile.ZipFile, "open", full_disk)
+    with pytest.raises(PanovoccError, match="b.npz: cannot write .No space left on device"):
+        npz.write_npz(tmp_path / "b.npz", arrays, threaded=True)
+    assert not list(tmp_path.iterdir())
+    assert not [t for t in threading.enumerate() if t.name == "write_npz"]

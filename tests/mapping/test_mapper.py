@@ -520,6 +520,58 @@ def test_revise_from_a_second_thread_while_integrate_runs_is_serialised_and_exac
     np.testing.assert_array_equal(m.prediction().labels, seq.prediction().labels)
 
 
+def test_revise_many_equals_a_loop_of_revise(mapped, tmp_path):
+    """``Mapper.revise_many`` (``panovocc revise``: frame i + 1's delta computed while frame i's is swapped in
+    on a second thread) gives the memory and the delta records of a loop of ``revise``, bit for bit and
+    equal to a map made with the final poses: a frame listed twice, an unchanged pose, frames out of order.
+    A swap that fails is raised in order: the frames before it are revised, the frames after it are not."""
+    import threading
+
+    _, cfg, frames = mapped
+    true = {i: frames(i).T_world_cam for i in range(N)}
+    direct = Mapper(cfg.mapper_config())
+    for i in range(N):
+        direct.integrate(frames(i))
+
+    def start(name):
+        m = Mapper(cfg.mapper_config(), folder=tmp_path / name, frame_source=frames)
+        for i in range(N):
+            m.integrate(dataclasses.replace(frames(i), T_world_cam=_moved(true[i], i) if i != 3 else true[i]))
+        m.save()
+        return m
+
+    plan = [(4, _moved(true[4], 9)), (0, true[0]), (3, true[3]), (4, true[4]), (2, true[2]), (1, true[1])]
+    loop, many = start("loop"), start("many")
+    assert sum(loop.revise(i, T) for i, T in plan) == 5
+    threads, done = set(), []
+    real = many._rpu.revise
+    many._rpu.revise = lambda *a, **k: (threads.add(threading.current_thread().name), real(*a, **k))[1]
+    assert many.revise_many([(i, T, None) for i, T in plan], done=done.append) == 5
+    assert done == [4, 0, 4, 2, 1] and all(t.startswith("revise") for t in threads)
+    _assert_same_memory(many, loop)
+    _assert_same_memory(many, direct)
+    for i in range(N):
+        assert many.record(i) == loop.record(i), i
+    loop.close()
+
+    failing = start("failing")
+    real_replace = failing.memory.replace
+    calls = []
+
+    def replace(old, new):
+        calls.append(1)
+        if len(calls) == 3:
+            raise PanovoccError("a memory channel would pass the int64 range")
+        real_replace(old, new)
+
+    failing.memory.replace = replace
+    with pytest.raises(PanovoccError, match="int64"):
+        failing.revise_many([(i, true[i], None) for i in (0, 1, 2, 4)])
+    assert [np.array_equal(failing.pose(i), true[i]) for i in range(N)] == [True, True, False, True, False]
+    failing.close()
+    many.close()
+
+
 def test_poses_that_are_not_rigid_are_refused_naming_the_frame(mapped):
     """A scaled pose, a reflection or a matrix whose last row is not [0 0 0 1] (e.g. a transposed one) is
     refused by integrate and revise in one line naming the frame; the map is unchanged."""
