@@ -27,7 +27,7 @@ class StreamedArray(NamedTuple):
     pieces: Callable[[], Iterable[np.ndarray]]
 
 
-PIPE_BYTES = 1 << 25  # bytes a threaded write_npz holds queued for its writer thread at most (32 MiB)
+PIPE_BYTES = 1 << 24  # bytes a threaded write_npz holds queued for its writer thread at most (16 MiB)
 
 
 class _EntryPipe:

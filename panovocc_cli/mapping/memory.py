@@ -50,6 +50,8 @@ RESERVE_ROWS = 1 << 26  # sparse-group rows reserved likewise
 FALLBACK_BLOCKS = 1 << 10  # initial blocks where nothing can be reserved (then doubled by copying)
 LOAD_CHUNK = 1 << 18  # rows a memory file is added in at a time (from_arrays): a few MB of (rows, channels)
 #                       int64, reused from the heap, instead of one matrix of every voxel (0.5 GB for a building)
+SKIP_UNCHANGED = True  # VoxelMemory.replace leaves out the kept voxels its difference does not change (False:
+#                        every voxel of the union is added, as before; scripts/swap_ab.py compares the two)
 _MAP_NORESERVE = 0x4000  # Linux mmap flag: no swap reservation for the mapping (mmap lacks the name)
 _I32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
 _I64 = (int(np.iinfo(np.int64).min), int(np.iinfo(np.int64).max))
@@ -345,10 +347,13 @@ def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n
 
 
 @nb.njit(cache=True, nogil=True)  # releases the GIL: Mapper.revise_many swaps on a second thread
-def _difference(ka, va, kb, vb):
+def _difference(ka, va, kb, vb, skip_kept):
     """``vb - va`` over the union of sorted unique keys ``ka`` (na,) and ``kb`` (nb,) (values (n, m) int64, a
     row absent from one side counting as zeros): (ok, keys (n,), values (n, m)); ok False when a difference
-    would pass int64 (nothing is wrapped: the caller then subtracts and adds apart)."""
+    would pass int64 (nothing is wrapped: the caller then subtracts and adds apart). ``skip_kept``: rows of
+    keys in ``ka`` whose difference is zero are left out (adding them changes nothing: their blocks are
+    allocated, since ``va`` was added before; a pose correction leaves about three quarters of a frame's
+    union unchanged); keys only in ``kb`` are kept even when zero (adding them allocates their block)."""
     na, nb_, m = ka.shape[0], kb.shape[0], va.shape[1]
     i = j = n = 0
     while i < na and j < nb_:
@@ -361,19 +366,24 @@ def _difference(ka, va, kb, vb):
     vals = np.empty((n, m), np.int64)
     lo, hi = np.iinfo(np.int64).min, np.iinfo(np.int64).max
     i = j = 0
-    for r in range(n):
+    r = 0
+    for _ in range(n):
         take_a = j >= nb_ or (i < na and ka[i] <= kb[j])
         take_b = i >= na or (j < nb_ and kb[j] <= ka[i])
+        zero = True
         for c in range(m):
             a = va[i, c] if take_a else 0
             b = vb[j, c] if take_b else 0
             if (a < 0 and b > hi + a) or (a > 0 and b < lo + a):
                 return False, keys[:0], vals[:0]
             vals[r, c] = b - a
+            zero = zero and a == b
         keys[r] = ka[i] if take_a else kb[j]
+        if not (skip_kept and take_a and zero):
+            r += 1
         i += take_a
         j += take_b
-    return True, keys, vals
+    return True, keys[:r], vals[:r]
 
 
 @nb.njit(cache=True)
@@ -727,7 +737,10 @@ class VoxelMemory:
         """Subtract ``old`` and add ``new`` (a revised frame's kept and recomputed deltas): the memory that
         ``add(old, -1)`` then ``add(new, +1)`` gives, bit for bit, with the same blocks and rows allocated,
         in one pass over the union of their keys for each part (a frame moved by a pose correction keeps
-        most of its voxels, so the union is about one delta, not two). Parts of ``new`` whose channels no
+        most of its voxels, so the union is about one delta, not two), less the voxels of ``old`` whose
+        values the difference leaves as they are (three quarters of the union on the building; a block
+        that only such voxels of ``old`` would allocate is not: one of a loaded memory, which allocates the
+        blocks of its non-zero voxels, whose voxels of ``old`` are all zero). Parts of ``new`` whose channels no
         part of ``old`` has, or a difference past int64, take the two passes. A refused sum leaves the
         memory as it was (:class:`PanovoccError`)."""
         olds = list(old.parts) if isinstance(old, FrameDelta) else [old]
@@ -743,7 +756,7 @@ class VoxelMemory:
                 break
             va = np.concatenate([o.channels[k] for k in names], axis=1)
             vb = np.concatenate([n.channels[k] for k in names], axis=1)
-            ok, keys, vals = _difference(o.keys, va, n.keys, vb)
+            ok, keys, vals = _difference(o.keys, va, n.keys, vb, SKIP_UNCHANGED)
             if not ok:
                 break
             widths = np.cumsum([0] + [n.channels[k].shape[1] for k in names])

@@ -338,8 +338,8 @@ def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
 def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
     """``replace(old, new)`` (a revision's swap of a frame's delta) gives the memory ``add(old, -1)`` then
     ``add(new, +1)`` gives, bit for bit and with the same allocated blocks and rows, adding each part once
-    over the union of its keys; parts of different channels, and differences past int64, take the two
-    passes."""
+    over the union of its keys less the kept voxels it does not change; parts of different channels, and
+    differences past int64, take the two passes."""
     rng = np.random.default_rng(12)
     specs = _semantic_specs(3)
 
@@ -354,6 +354,16 @@ def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
     cases = [(old, new), (old, FrameDelta(new.parts[:1])), (FrameDelta(old.parts[1:]), new)]
     big = Delta(old.parts[0].keys[:3], {c: np.full((3, 1), 2 ** 62) for c in ("A", "N", "F", "O")})
     cases.append((FrameDelta((Delta(big.keys, {c: -v for c, v in big.channels.items()}),)), FrameDelta((big,))))
+    # a small pose correction: most voxels keep their values (left out of the pass), a few change, a few
+    # are new, one of them with zero values (still added: it allocates its block, as add(new, +1) does)
+    g, sem = old.parts
+    near_geo = {c: v.copy() for c, v in g.channels.items()}
+    near_geo["F"][::10] += 1
+    far = np.array([pack_keys(np.array([[200, 200, 200]]))[0], pack_keys(np.array([[300, 0, 0]]))[0]])
+    keys = np.concatenate([g.keys, far])
+    near_geo = {c: np.concatenate([v, np.zeros((2, v.shape[1]), np.int64)]) for c, v in near_geo.items()}
+    near_geo["A"][-1] = 7
+    cases.append((old, FrameDelta((Delta(keys, near_geo), Delta(sem.keys, {c: v.copy() for c, v in sem.channels.items()})))))
     for case, (o, n) in enumerate(cases):
         want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
         for m in (want, got):
@@ -368,6 +378,8 @@ def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
         monkeypatch.setattr(VoxelMemory, "_add_group", real)
         if case == 0:
             assert [g for g, _ in passes] == ["dense", "sparse"], passes  # one pass a group
+        if case == len(cases) - 1:  # the unchanged voxels were left out; the new zero row was not
+            assert passes == [("dense", len(g.keys[::10]) + 2)], passes
         a, b = want.to_arrays(), got.to_arrays()
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
