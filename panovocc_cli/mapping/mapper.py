@@ -349,7 +349,7 @@ class Mapper:
             if done is not None:
                 done(fid)
 
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise")
+        pool = None  # started by the first frame whose pose changed
         try:
             for fid, T, frame in revisions:
                 if pending is not None and pending[0] == int(fid):
@@ -363,11 +363,13 @@ class Mapper:
                 if pending is not None:
                     finish()
                 if job is not None:
+                    pool = pool or ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise")
                     pending = (job[0], pool.submit(self._swap, *job))
             if pending is not None:
                 finish()
         finally:
-            pool.shutdown(wait=True)  # a failure in the caller's thread waits for the swap in progress
+            if pool is not None:
+                pool.shutdown(wait=True)  # a failure in the caller's thread waits for the swap in progress
         return count
 
     def _revision(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None):

@@ -567,8 +567,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             mapper.integrate(frame)
             if schedule is not None:
                 corrected += schedule.apply(mapper, frames, i)
-            for fid, T in revisions:
-                mapper.revise(fid, T)
+            mapper.revise_many((fid, T, None) for fid, T in revisions)  # a loop closure's frames, pipelined
             t_frame = time.perf_counter() - tc
             t_compute += t_frame
             if observer is not None:
