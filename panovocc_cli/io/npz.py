@@ -118,11 +118,7 @@ def _array_buffers(f_write, arr: np.ndarray) -> None:
     """``np.lib.format.write_array(f, arr)``'s bytes for a C-contiguous array, given to ``f_write`` as
     slices of the array's own memory (no copy): its 1.0 header, then the data in pieces of
     :data:`_PIECE` bytes."""
-    from io import BytesIO
-
-    head = BytesIO()
-    np.lib.format.write_array_header_1_0(head, np.lib.format.header_data_from_array_1_0(arr))
-    f_write(head.getvalue())
+    f_write(_header(np.lib.format.header_data_from_array_1_0(arr)))
     data = arr.reshape(-1).view(np.uint8)
     for a in range(0, len(data), _PIECE):
         f_write(data[a:a + _PIECE])
@@ -131,15 +127,20 @@ def _array_buffers(f_write, arr: np.ndarray) -> None:
 _PIECE = 1 << 22  # bytes of an array's data given to the writer thread at a time
 
 
-def _write_streamed(write, name: str, arr: StreamedArray) -> None:
-    dtype = np.dtype(arr.dtype)
-    header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
-              "shape": tuple(int(x) for x in arr.shape)}
+def _header(d: dict) -> bytes:
+    """The ``.npy`` 1.0 header of ``d`` (descr, fortran_order, shape): what ``np.lib.format.write_array``
+    writes first."""
     from io import BytesIO
 
     head = BytesIO()
-    np.lib.format.write_array_header_1_0(head, header)  # write_array's header
-    write(head.getvalue())
+    np.lib.format.write_array_header_1_0(head, d)
+    return head.getvalue()
+
+
+def _write_streamed(write, name: str, arr: StreamedArray) -> None:
+    dtype = np.dtype(arr.dtype)
+    write(_header({"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                   "shape": tuple(int(x) for x in arr.shape)}))
     want, got = int(np.prod(arr.shape, dtype=np.int64)) * dtype.itemsize, 0
     for piece in arr.pieces():
         piece = np.ascontiguousarray(piece)
