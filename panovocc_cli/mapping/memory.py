@@ -51,7 +51,7 @@ FALLBACK_BLOCKS = 1 << 10  # initial blocks where nothing can be reserved (then 
 LOAD_CHUNK = 1 << 18  # rows a memory file is added in at a time (from_arrays): a few MB of (rows, channels)
 #                       int64, reused from the heap, instead of one matrix of every voxel (0.5 GB for a building)
 SKIP_UNCHANGED = True  # VoxelMemory.replace leaves out the kept voxels its difference does not change (False:
-#                        every voxel of the union is added, as before; scripts/swap_ab.py compares the two)
+#                        every voxel of the union is added, as before; scripts/revise_ab.py swap compares the two)
 _MAP_NORESERVE = 0x4000  # Linux mmap flag: no swap reservation for the mapping (mmap lacks the name)
 _I32 = (int(np.iinfo(np.int32).min), int(np.iinfo(np.int32).max))
 _I64 = (int(np.iinfo(np.int64).min), int(np.iinfo(np.int64).max))
