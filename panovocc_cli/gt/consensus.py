@@ -38,9 +38,15 @@ benchmark must not be built by the method it ranks). On the global lattice of vo
    frames support it and the supporting frames are at least ``min_hit_ratio`` of the frames supporting or
    seeing through it: free space carved by every ray overrides a mode that noise or one frame made. The
    span voxels of an occupied mode voxel are occupied with it.
-4. **Labels.** As before: the annotated frames vote (one vote per frame per voxel, split over its pixels'
-   classes) — each pixel in the surface voxel its point supports, so a noisy point still votes where its
-   surface is; a span voxel (not a mode voxel itself) takes the votes of the mode voxels that span it; the
+4. **Labels.** The annotated frames vote (one vote per frame per voxel, split over its pixels' classes)
+   twice: each pixel in the surface voxel its point supports, so a noisy point still votes where its
+   surface is, and in the voxel the point itself lies in; a span voxel (not a mode voxel itself) also takes
+   the support votes of the mode voxels that span it. The mesh truth's class is the largest *area* inside a
+   voxel, and by pixels a surface seen square outvotes one seen at a grazing angle (a wall against the
+   ceiling at their edge): so a voxel first takes the class whose supporting points, over all the annotated
+   frames, cover the most of its *area cells* (each point's cell: the surface's axis and the point's
+   ``AREA_SPLIT`` x ``AREA_SPLIT`` sub-square of the voxel along the two lateral axes; a set union, order
+   free), the summed vote deciding between equal covers and where no class covers any; then the
    nearest-label transfer within ``label_radius`` (:func:`.lifted.label_grid`).
 
 Every frame contributes to the same integer sums whatever the order, so the trajectory run backwards
@@ -69,6 +75,8 @@ DIP = 0.5  # two modes are one surface unless the density between them dips belo
 POINT_MASS = 4096  # fixed-point mass of one point in the smoothed density
 KERNEL_R2 = 1.5  # a point's triangle: half-width max(h / 2, KERNEL_R2 surface_tol_r2 r^2)
 SPAN_MAX = 1  # a surface's span reaches at most this many voxels either side of its mode's voxel (2b)
+AREA_SPLIT = 2  # a voxel face's area cells per lateral axis (labels: the class covering the most cells, 4)
+AREA_CELLS = 3 * AREA_SPLIT * AREA_SPLIT  # area cells of a voxel: its three axes' surfaces
 SPAN_MARGIN = 0.0  # voxels: a span counts a neighbouring voxel when it reaches more than this far into it (2b)
 # (3 axes x FINE bins x (2 sides x (int32 count + int64 offset) + int64 density)) + 3 float64 surface positions
 # + 3 x 2 float64 positions of the two sides (while settling) + 6 int32 counts/stamps + bools
@@ -225,11 +233,22 @@ def _vox(x, h, i0, b):
     return int(np.floor(x / h + GT_BOUNDARY_EPS)) - i0[b]
 
 
+@nb.njit(cache=True, inline="always")
+def _sub(x, h):
+    """Sub-square (0 .. AREA_SPLIT - 1) of coordinate x within its voxel (the voxel of :func:`_vox`)."""
+    t = x / h
+    k = int(np.floor((t - np.floor(t + GT_BOUNDARY_EPS)) * AREA_SPLIT))
+    return min(max(k, 0), AREA_SPLIT - 1)
+
+
 @nb.njit(cache=True)
 def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S1, S2, hit_frames, hit_points,
-                     hit_stamp, see_frames, see_stamp, seen, pix_lin):
+                     hit_stamp, see_frames, see_stamp, seen, pix_lin, pix_cell, pos_lin):
     """Pass 2: support, seen-through and seen voxels of one frame (module docstring, 3); ``pix_lin``
-    (H, W) int64 receives the surface voxel each pixel supports (-1: none)."""
+    (H, W) int64 receives the surface voxel each pixel supports (-1: none), ``pix_cell`` (H, W) int64 the
+    area cell of that voxel's surface the point lies in (``(axis * AREA_SPLIT + i) * AREA_SPLIT + j``, i, j
+    the point's sub-square of the voxel along the surface's two lateral axes; -1: none), ``pos_lin`` the
+    voxel the point itself lies in (-1: outside the box or invalid)."""
     H, W = depth.shape
     ox, oy, oz = T[0, 3], T[1, 3], T[2, 3]
     o = np.array([ox, oy, oz])
@@ -238,16 +257,24 @@ def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S
     for v in range(H):
         for u in range(W):
             pix_lin[v, u] = -1
+            pix_cell[v, u] = -1
+            pos_lin[v, u] = -1
             if not ok[v, u]:
                 continue
             r = depth[v, u]
             tol = tol0 + tol2 * r * r
+            inside = True
             for b in range(3):
                 p[b] = P[v, u, b]
                 idx[b] = _vox(p[b], h, i0, b)
+                if idx[b] < 0 or idx[b] >= shape[b]:
+                    inside = False
+            if inside:
+                pos_lin[v, u] = (idx[0] * shape[1] + idx[1]) * shape[2] + idx[2]
             # support: the nearest consensus surface along its axis within tol
             best = tol
             bq = -1
+            ba = -1
             for a in range(3):
                 b1, b2 = (a + 1) % 3, (a + 2) % 3
                 if idx[b1] < 0 or idx[b1] >= shape[b1] or idx[b2] < 0 or idx[b2] >= shape[b2]:
@@ -265,8 +292,12 @@ def _evidence_kernel(depth, P, ok, T, h, i0, shape, f, stride, tol0, tol2, S0, S
                             if d < best or bq < 0 or q < bq:
                                 best = d
                                 bq = q
+                                ba = a
             if bq >= 0:
                 pix_lin[v, u] = bq
+                c1 = _sub(p[(ba + 1) % 3], h)
+                c2 = _sub(p[(ba + 2) % 3], h)
+                pix_cell[v, u] = (ba * AREA_SPLIT + c1) * AREA_SPLIT + c2
                 hit_points[bq] += 1
                 if hit_stamp[bq] != f:
                     hit_stamp[bq] = f
@@ -529,6 +560,8 @@ class ConsensusLift:
         self._hit_stamp = np.full(n, -1, np.int32)
         self._see_stamp = np.full(n, -1, np.int32)
         self._votes: list[tuple[np.ndarray, np.ndarray]] = []
+        self._pos_votes: list[tuple[np.ndarray, np.ndarray]] = []
+        self._cells: list[np.ndarray] = []
         self.frames = 0
         self.evidence_frames = 0
         self.annotated = 0
@@ -603,18 +636,24 @@ class ConsensusLift:
         depth, T, P, ok = self._lift(depth, T_world_cam)
         H, W = depth.shape
         pix = np.empty((H, W), np.int64)
+        cell = np.empty((H, W), np.int64)
+        pos = np.empty((H, W), np.int64)
         S = self.surface
         _evidence_kernel(depth, P, ok, T, self.h, self.index0, np.asarray(self.shape, np.int64),
                          np.int32(self.evidence_frames), carve_stride(W), self.tol0, self.tol2, S[0], S[1], S[2],
                          self.hit_frames, self.hit_points, self._hit_stamp, self.see_frames, self._see_stamp,
-                         self.seen, pix)
+                         self.seen, pix, cell, pos)
         self.evidence_frames += 1
         if labels is None:
             return
         lab = np.asarray(labels)
         if lab.shape != depth.shape:
             raise PanovoccError(f"labels {lab.shape} and depth {depth.shape} differ in size")
-        self._votes.append(frame_votes(pix, lab, self.n_classes))
+        C = self.n_classes
+        self._votes.append(frame_votes(pix, lab, C))  # in the surface voxel each point supports
+        self._pos_votes.append(frame_votes(pos, lab, C))  # and in the voxel it lies in
+        m = (pix >= 0) & (lab > 0)
+        self._cells.append(np.unique((pix[m] * C + lab[m].astype(np.int64)) * AREA_CELLS + cell[m]))
         self.annotated += 1
 
     def _spanned(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -654,8 +693,11 @@ class ConsensusLift:
             rep = np.repeat(np.arange(len(owner)), n)
             at = np.repeat(start - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
             votes.append((vox[rep] * C + keys[at] % C, w[at]))
-        g, self.stats = label_grid(occ, self.seen & ~occ, votes, self.n_classes, class_names, label_radius,
-                                   self.index0, self.shape, self.h)
+        area = None
+        if self._cells:
+            area = np.unique(np.unique(np.concatenate(self._cells)) // AREA_CELLS, return_counts=True)
+        g, self.stats = label_grid(occ, self.seen & ~occ, votes + self._pos_votes, self.n_classes, class_names,
+                                   label_radius, self.index0, self.shape, self.h, area)
         self.stats["modes"] = self.modes
         self.stats["spanned"] = int(occ.sum() - base.sum())
         return g

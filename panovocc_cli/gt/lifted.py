@@ -8,6 +8,7 @@ docs/gt.md has the rules' measurements). The occupancy itself is the multi-view 
   its own depth and pose; per voxel the frame casts one vote, split over the classes of its pixels in
   that voxel (fractions summing to 1, in fixed point so the sum does not depend on the frames' order), so
   a frame close to a surface does not outvote several far ones by pixel count. An occupied voxel takes
+  the class covering the most of its area (where the caller measures it: the consensus's area cells), then
   the class with the largest summed vote (ties: the lower class id). Unlabelled pixels (id 0) vote for
   nothing; votes falling in voxels that are not occupied are dropped;
 * **bounded transfer**: an occupied voxel no annotation reached takes the label of the nearest labelled
@@ -133,13 +134,17 @@ def frame_votes(pix_lin: np.ndarray, labels: np.ndarray, n_classes: int) -> tupl
 
 
 def label_grid(occ: np.ndarray, free: np.ndarray, votes: list[tuple[np.ndarray, np.ndarray]], n_classes: int,
-               class_names: list[str], label_radius: float, index0, shape, voxel_size: float) -> tuple[Grid, dict]:
+               class_names: list[str], label_radius: float, index0, shape, voxel_size: float,
+               area: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Grid, dict]:
     """The lifted grid from its occupancy, its observed free space and the annotated frames' votes.
 
     Parameters
     ----------
     occ, free : (n,) bool over the box (C order of ``shape``): occupied; observed and not occupied
     votes : :func:`frame_votes` of each annotated frame
+    area : optional ``(keys, cells)``: sorted unique ``voxel * n_classes + class`` and how much of the voxel's
+        surface that class covers (any whole measure); a voxel takes the class covering the most, the summed
+        vote deciding between equal covers (and where no class covers any)
     class_names : the annotations' names, ``class_names[0]`` = unlabelled (becomes ``empty``)
     label_radius : metres, bound of the nearest-label transfer
     index0, shape, voxel_size : the box on the lattice
@@ -160,11 +165,15 @@ def label_grid(occ: np.ndarray, free: np.ndarray, votes: list[tuple[np.ndarray, 
     if votes:
         keys, inv = np.unique(np.concatenate([k for k, _ in votes]), return_inverse=True)
         w = np.bincount(inv, weights=np.concatenate([v for _, v in votes])).astype(np.int64)
+        cover = np.zeros(len(keys), np.int64)
+        if area is not None and len(area[0]):
+            at = np.minimum(np.searchsorted(area[0], keys), len(area[0]) - 1)
+            cover = np.where(area[0][at] == keys, area[1][at], 0).astype(np.int64)
         vox, c = keys // n_classes, keys % n_classes
         keep = occ[vox] & (c < len(class_names))
-        vox, c, w = vox[keep], c[keep], w[keep]
+        vox, c, w, cover = vox[keep], c[keep], w[keep], cover[keep]
         if len(vox):
-            order = np.lexsort((c, -w, vox))  # per voxel: the largest vote first, then the lower class id
+            order = np.lexsort((c, -w, -cover, vox))  # per voxel: the largest cover, vote, then the lower class id
             first = np.ones(len(order), bool)
             first[1:] = vox[order][1:] != vox[order][:-1]
             win = order[first]

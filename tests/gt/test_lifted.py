@@ -365,3 +365,27 @@ def test_a_slab_seen_from_both_sides_keeps_both_voxels():
     cols = {(i, k) for i in range(-8, 8) for k in range(-8, 8)}
     assert {(i, -2, k) for i, k in cols} | {(i, -1, k) for i, k in cols} <= occ
     assert all(j in (-2, -1) for _, j, _ in occ)
+
+
+
+def test_the_class_covering_more_of_a_voxel_beats_the_larger_vote():
+    """label_grid (gt/lifted.py): a voxel takes the class whose points cover the most of its area cells, the
+    summed vote deciding only between equal covers or where no class covers any (the mesh truth's class is
+    the largest area inside a voxel; a surface seen square outvotes one seen at a grazing angle by pixels).
+    Five voxels of a 1 x 1 x 5 box, classes 1 and 2: voxel 0 class 1 has the larger vote, class 2 the larger
+    cover; voxel 1 equal covers; voxel 2 no cover; voxel 3 only class 1 covers, class 2 has all the vote;
+    voxel 4 no vote (transfer)."""
+    from panovocc_cli.gt.lifted import VOTE_UNITS, label_grid
+
+    C = 3
+    keys = np.array([0 * C + 1, 0 * C + 2, 1 * C + 1, 1 * C + 2, 2 * C + 1, 2 * C + 2, 3 * C + 1, 3 * C + 2])
+    w = np.array([3, 1, 1, 2, 2, 1, 0, 5]) * VOTE_UNITS
+    area = (np.array([0 * C + 1, 0 * C + 2, 1 * C + 1, 1 * C + 2, 3 * C + 1]), np.array([1, 3, 2, 2, 1]))
+    occ = np.ones(5, bool)
+    names = ["unlabeled", "floor", "wall"]
+    g, st = label_grid(occ, ~occ, [(keys, w)], C, names, 0.08, (0, 0, 0), (1, 1, 5), 0.08, area)
+    assert g.labels.ravel().tolist() == [2, 2, 1, 1, 1]
+    g, _ = label_grid(occ, ~occ, [(keys, w)], C, names, 0.08, (0, 0, 0), (1, 1, 5), 0.08)  # votes alone
+    assert g.labels.ravel().tolist() == [1, 2, 1, 2, 2]
+    assert st["transferred"] == 1
+
