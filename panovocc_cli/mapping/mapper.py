@@ -333,11 +333,13 @@ class Mapper:
         """:meth:`revise` of each ``(frame_id, T_world_cam, frame or None)`` in order, frame ``i + 1``'s delta
         computed while frame ``i``'s is swapped into the memory on a second thread (the memory's kernels
         release the GIL; ``panovocc revise``). The same calls in the same order as a loop of :meth:`revise`:
-        the same memory, records and failures (a frame listed again waits for its previous swap).
+        the same memory, records and failures (a frame listed again waits for the swap in progress, so that
+        its kept delta, which that frame's earlier swap may still be writing, is read by one thread alone).
         ``done(frame_id)`` is called once a frame's swap is made. Returns the number of frames revised."""
         from concurrent.futures import ThreadPoolExecutor
 
         pending = None  # (frame id, future) of the swap in progress
+        swapped: set[int] = set()  # frames whose swap was submitted
         count = 0
 
         def finish():
@@ -352,7 +354,7 @@ class Mapper:
         pool = None  # started by the first frame whose pose changed
         try:
             for fid, T, frame in revisions:
-                if pending is not None and pending[0] == int(fid):
+                if pending is not None and int(fid) in swapped:
                     finish()
                 try:
                     job = self._revision(fid, T, frame)
@@ -365,6 +367,7 @@ class Mapper:
                 if job is not None:
                     pool = pool or ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise")
                     pending = (job[0], pool.submit(self._swap, *job))
+                    swapped.add(job[0])
             if pending is not None:
                 finish()
         finally:

@@ -571,6 +571,24 @@ def test_revise_many_equals_a_loop_of_revise(mapped, tmp_path):
     failing.close()
     many.close()
 
+    # a frame listed again with another changed frame between: its kept delta (which its first swap may still
+    # be writing) is read only once the swap in progress has ended, never beside it
+    again = start("again")
+    events = []
+    real_swap, real_revision = again._swap, again._revision
+    again._swap = lambda fid, *a: (events.append(("swap", fid)), real_swap(fid, *a), events.append(("end", fid)))[1]
+    again._revision = lambda fid, *a: (events.append(("revision", fid)), real_revision(fid, *a))[1]
+    assert again.revise_many([(4, true[4], None), (0, true[0], None), (4, _moved(true[4], 9), None)]) == 3
+    assert events.index(("end", 0)) < len(events) - 1 - events[::-1].index(("revision", 4))
+    loop = start("loop2")
+    for i, T in ((4, true[4]), (0, true[0]), (4, _moved(true[4], 9))):
+        loop.revise(i, T)
+    _assert_same_memory(again, loop)
+    for i in range(N):
+        assert again.record(i) == loop.record(i), i
+    again.close()
+    loop.close()
+
 
 def test_poses_that_are_not_rigid_are_refused_naming_the_frame(mapped):
     """A scaled pose, a reflection or a matrix whose last row is not [0 0 0 1] (e.g. a transposed one) is
