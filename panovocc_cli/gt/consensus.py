@@ -697,7 +697,7 @@ class ConsensusLift:
         if self._cells:
             area = np.unique(np.unique(np.concatenate(self._cells)) // AREA_CELLS, return_counts=True)
         g, self.stats = label_grid(occ, self.seen & ~occ, votes + self._pos_votes, self.n_classes, class_names,
-                                   label_radius, self.index0, self.shape, self.h, area)
+                                   label_radius, self.index0, self.shape, self.h, area, self.surface)
         self.stats["modes"] = self.modes
         self.stats["spanned"] = int(occ.sum() - base.sum())
         return g
