@@ -28,8 +28,8 @@ surface_tol + surface_tol_r2 r^2 of it along its normal axis (docs/gt.md)."""
 DEFAULT_SURFACE_TOL_R2 = 0.004
 """Metres per square metre of range: the range-dependent part of tol(r) (docs/gt.md)."""
 DEFAULT_LABEL_RADIUS = 0.16
-"""Metres: an occupied voxel no annotation reached takes the label of the nearest labelled voxel this close
-(centre to centre, two voxels at 8 cm), else 254 (docs/gt.md)."""
+"""Metres: an occupied voxel no annotation reached takes the most common label of the nearest labelled voxels
+this close, those on its own surface first (centre to centre, two voxels at 8 cm), else 254 (docs/gt.md)."""
 
 
 @dataclass
@@ -54,8 +54,9 @@ class LiftParams:
     surface_tol_r2: float = option(DEFAULT_SURFACE_TOL_R2, min=0,
                                    help="Metres per square metre of range: the range-dependent part of that tolerance.")
     label_radius: float = option(DEFAULT_LABEL_RADIUS, min=0, max=MAX_VOXEL_SIZE * 10,
-                                 help="Metres: an occupied voxel no annotation reached takes the nearest lifted "
-                                      "label within this distance (voxel centres), else 254.")
+                                 help="Metres: an occupied voxel no annotation reached takes the most common label "
+                                      "of the nearest labelled voxels within this distance (voxel centres), those "
+                                      "on its own surface first, else 254.")
     max_range: float = option(0.0, min=0, help="Metres: ignore depth beyond this range (0 = keep all).")
 
 

@@ -47,7 +47,9 @@ benchmark must not be built by the method it ranks). On the global lattice of vo
    frames, cover the most of its *area cells* (each point's cell: the surface's axis and the point's
    ``AREA_SPLIT`` x ``AREA_SPLIT`` sub-square of the voxel along the two lateral axes; a set union, order
    free), the summed vote deciding between equal covers and where no class covers any; then the
-   nearest-label transfer within ``label_radius`` (:func:`.lifted.label_grid`).
+   nearest-label transfer within ``label_radius`` (:func:`.lifted.transfer_labels`), which takes the
+   nearest labelled voxels on the voxel's own consensus surface first (a hidden wall patch behind a
+   cabinet stays wall).
 
 Every frame contributes to the same integer sums whatever the order, so the trajectory run backwards
 gives the same grid, byte for byte.
@@ -697,7 +699,7 @@ class ConsensusLift:
         if self._cells:
             area = np.unique(np.unique(np.concatenate(self._cells)) // AREA_CELLS, return_counts=True)
         g, self.stats = label_grid(occ, self.seen & ~occ, votes + self._pos_votes, self.n_classes, class_names,
-                                   label_radius, self.index0, self.shape, self.h, area)
+                                   label_radius, self.index0, self.shape, self.h, area, self.surface)
         self.stats["modes"] = self.modes
         self.stats["spanned"] = int(occ.sum() - base.sum())
         return g

@@ -11,9 +11,11 @@ docs/gt.md has the rules' measurements). The occupancy itself is the multi-view 
   the class covering the most of its area (where the caller measures it: the consensus's area cells), then
   the class with the largest summed vote (ties: the lower class id). Unlabelled pixels (id 0) vote for
   nothing; votes falling in voxels that are not occupied are dropped;
-* **bounded transfer**: an occupied voxel no annotation reached takes the label of the nearest labelled
-  occupied voxel within ``label_radius`` metres (centre to centre; among equally near ones the KD-tree's
-  fixed order decides, the same on every run), else 254 (occupied, no class).
+* **bounded transfer** (:func:`transfer_labels`): an occupied voxel no annotation reached takes the most
+  common class of the nearest labelled occupied voxels within ``label_radius`` metres (centre to centre),
+  among those on its own surface where there are any (the caller's consensus surfaces, within
+  ``SAME_SURFACE_TOL`` voxels); ties: the class with fewer labelled voxels, then the lower class id; else 254
+  (occupied, no class).
 
 No file I/O here: ``run_lifted_gt`` (the reading and writing) lives in :mod:`panovocc_cli.gt.run`.
 """
@@ -133,9 +135,71 @@ def frame_votes(pix_lin: np.ndarray, labels: np.ndarray, n_classes: int) -> tupl
     return uk, (cnt.astype(np.int64) * VOTE_UNITS) // tot[inv]
 
 
+SAME_SURFACE_TOL = 0.25  # voxels: a source voxel is on the same surface when its position is this close (transfer)
+
+
+def transfer_labels(cls: np.ndarray, src: np.ndarray, dst: np.ndarray, shape, r_vox: float,
+                    surfaces: list[np.ndarray] | None = None, same_tol: float = 0.0) -> np.ndarray:
+    """The bounded transfer: a class for each voxel ``dst`` from the labelled voxels ``src`` within ``r_vox``.
+
+    The candidates are the sources within ``r_vox`` voxels (centre to centre); where some of them lie on the
+    voxel's own surface (an axis along which both have a consensus surface, positions within ``same_tol``
+    metres) only those. Among the nearest candidates the most common class wins; between equally common
+    classes the one with fewer labelled voxels in the grid (an object's hidden side beside a wall or the floor
+    is the object's), then the lower class id. Integer distances and counts: the result depends neither on the
+    order of ``src`` / ``dst`` nor on any tree's.
+
+    Parameters
+    ----------
+    cls : (n,) uint8 class of every voxel of the box (read at ``src``)
+    src, dst : int64 linear indices into the box (C order of ``shape``)
+    r_vox : bound, voxels
+    surfaces : optional, per axis (n,) float64 consensus surface position, metres (NaN: none)
+    same_tol : metres
+
+    Returns
+    -------
+    (len(dst),) uint8: the class, ``OCCUPIED_UNKNOWN_CLASS`` where no source lies within ``r_vox``
+    """
+    from scipy.spatial import cKDTree
+
+    out = np.full(len(dst), OCCUPIED_UNKNOWN_CLASS, np.uint8)
+    if not len(dst) or not len(src) or r_vox <= 0:
+        return out
+    ps_all = np.stack(np.unravel_index(src, shape), 1).astype(np.int64)
+    pd_all = np.stack(np.unravel_index(dst, shape), 1).astype(np.int64)
+    near = cKDTree(ps_all.astype(np.float64)).query_ball_point(pd_all.astype(np.float64), r_vox * (1 + 1e-9))
+    n_per = np.fromiter((len(x) for x in near), np.int64, len(near))
+    if not n_per.any():
+        return out
+    pd = np.repeat(np.arange(len(dst)), n_per)
+    ps = np.fromiter((j for x in near for j in x), np.int64, int(n_per.sum()))
+    d2 = ((ps_all[ps] - pd_all[pd]) ** 2).sum(1)
+    keep = np.ones(len(pd), bool)
+    if surfaces is not None:
+        same = np.zeros(len(pd), bool)
+        for S in surfaces:
+            a, b = S[dst[pd]], S[src[ps]]
+            same |= np.isfinite(a) & np.isfinite(b) & (np.abs(np.nan_to_num(a) - np.nan_to_num(b)) <= same_tol)
+        keep = same | (np.bincount(pd, weights=same, minlength=len(dst)) == 0)[pd]
+    pd, ps, d2 = pd[keep], ps[keep], d2[keep]
+    dmin = np.full(len(dst), np.iinfo(np.int64).max)
+    np.minimum.at(dmin, pd, d2)
+    at = d2 == dmin[pd]
+    c = cls[src[ps[at]]].astype(np.int64)
+    key, cnt = np.unique(pd[at] * 256 + c, return_counts=True)
+    kd, kc = key // 256, key % 256
+    size = np.bincount(cls[src], minlength=256)
+    order = np.lexsort((kc, size[kc], -cnt, kd))
+    first = order[np.r_[True, kd[order][1:] != kd[order][:-1]]]
+    out[kd[first]] = kc[first]
+    return out
+
+
 def label_grid(occ: np.ndarray, free: np.ndarray, votes: list[tuple[np.ndarray, np.ndarray]], n_classes: int,
                class_names: list[str], label_radius: float, index0, shape, voxel_size: float,
-               area: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Grid, dict]:
+               area: tuple[np.ndarray, np.ndarray] | None = None,
+               surfaces: list[np.ndarray] | None = None) -> tuple[Grid, dict]:
     """The lifted grid from its occupancy, its observed free space and the annotated frames' votes.
 
     Parameters
@@ -147,6 +211,8 @@ def label_grid(occ: np.ndarray, free: np.ndarray, votes: list[tuple[np.ndarray, 
         vote deciding between equal covers (and where no class covers any)
     class_names : the annotations' names, ``class_names[0]`` = unlabelled (becomes ``empty``)
     label_radius : metres, bound of the nearest-label transfer
+    surfaces : optional, per axis (n,) float the position in metres of the voxel's consensus surface along that
+        axis (NaN: none): the transfer's same-surface sources (:func:`transfer_labels`)
     index0, shape, voxel_size : the box on the lattice
 
     Returns
@@ -154,8 +220,6 @@ def label_grid(occ: np.ndarray, free: np.ndarray, votes: list[tuple[np.ndarray, 
     grid : 0 observed free, 1..253 class, 254 occupied without class, 255 never observed;
     stats : dict (occupied, voted, transferred, no_class, free, unknown)
     """
-    from scipy.spatial import cKDTree
-
     if len(class_names) > OCCUPIED_UNKNOWN_CLASS:
         raise PanovoccError(f"{len(class_names)} classes; a uint8 grid holds at most 253")
     shape = tuple(int(s) for s in shape)
@@ -183,14 +247,11 @@ def label_grid(occ: np.ndarray, free: np.ndarray, votes: list[tuple[np.ndarray, 
     r_vox = float(label_radius) / float(voxel_size)
     transferred = 0
     if todo.any() and labelled.any() and r_vox > 0:
-        src = np.flatnonzero(labelled)
         dst = np.flatnonzero(todo)
-        tree = cKDTree(np.stack(np.unravel_index(src, shape), 1).astype(np.float64))
-        d, j = tree.query(np.stack(np.unravel_index(dst, shape), 1).astype(np.float64),
-                          distance_upper_bound=r_vox * (1 + 1e-9))
-        hit = np.isfinite(d)
-        cls[dst[hit]] = cls[src[j[hit]]]
-        transferred = int(hit.sum())
+        got = transfer_labels(cls, np.flatnonzero(labelled), dst, shape, r_vox, surfaces,
+                              SAME_SURFACE_TOL * float(voxel_size))
+        cls[dst] = got
+        transferred = int((got != OCCUPIED_UNKNOWN_CLASS).sum())
     labels[occ] = cls[occ]
     stats = {"occupied": int(occ.sum()), "voted": int(labelled.sum()), "transferred": transferred,
              "no_class": int(occ.sum()) - int(labelled.sum()) - transferred,

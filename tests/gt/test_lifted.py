@@ -389,3 +389,73 @@ def test_the_class_covering_more_of_a_voxel_beats_the_larger_vote():
     assert g.labels.ravel().tolist() == [1, 2, 1, 2, 2]
     assert st["transferred"] == 1
 
+
+
+def _hidden_wall():
+    """A wall (class 2) along x = 0 of a 3 x 5 x 5 box whose 3 x 3 middle patch no annotated pixel reached,
+    hidden behind a cabinet (class 3) standing against it at x = 1; the wall's consensus surface at
+    x = 0.04 m, the cabinet's front at 0.12 m (h = 0.08)."""
+    C, shape = 4, (3, 5, 5)
+    occ = np.zeros(shape, bool)
+    occ[0] = True
+    occ[1, 1:4, 1:4] = True
+    hidden = np.zeros(shape, bool)
+    hidden[0, 1:4, 1:4] = True
+    S = [np.full(occ.size, np.nan) for _ in range(3)]
+    S[0][np.flatnonzero(occ[0:1].ravel())] = 0.04
+    S[0][np.ravel_multi_index(np.nonzero(occ & (np.arange(3)[:, None, None] == 1)), shape)] = 0.12
+    voted = occ & ~hidden
+    vox = np.flatnonzero(voted.ravel())
+    cls = np.where(np.unravel_index(vox, shape)[0] == 0, 2, 3)
+    from panovocc_cli.gt.lifted import VOTE_UNITS
+
+    votes = [(vox * C + cls, np.full(len(vox), VOTE_UNITS, np.int64))]
+    return occ, hidden, votes, S, C, shape
+
+
+def test_transfer_keeps_a_hidden_patch_on_its_own_surface():
+    """label_grid's transfer (gt/lifted.py): a wall patch no annotated pixel reached, behind a cabinet of
+    another class one voxel in front of it, takes the wall's class from the nearest labelled voxels of its
+    own consensus surface, not the cabinet's one voxel away (the plain nearest voxel, the rule before)."""
+    from panovocc_cli.gt.lifted import label_grid
+
+    occ, hidden, votes, S, C, shape = _hidden_wall()
+    names = ["unlabeled", "floor", "wall", "cabinet"]
+    g, st = label_grid(occ.ravel(), ~occ.ravel(), votes, C, names, 0.16, (0, 0, 0), shape, 0.08, None, S)
+    assert st["transferred"] == 9 and st["no_class"] == 0
+    assert (g.labels[hidden] == 2).all()  # wall, the centre one too (the cabinet 1 voxel away, the wall 2)
+    assert (g.labels[1, 1:4, 1:4] == 3).all()
+    # without the surfaces: the nearest labelled voxels of any surface, the cabinet for the centre voxel
+    g0, _ = label_grid(occ.ravel(), ~occ.ravel(), votes, C, names, 0.16, (0, 0, 0), shape, 0.08)
+    assert g0.labels[0, 2, 2] == 3
+    # within one voxel the centre has no source on its surface: the other surfaces' (the cabinet); the
+    # patch's other voxels touch the wall's labelled voxels
+    g1, _ = label_grid(occ.ravel(), ~occ.ravel(), votes, C, names, 0.08, (0, 0, 0), shape, 0.08, None, S)
+    assert g1.labels[0, 2, 2] == 3 and (g1.labels[hidden] == 2).sum() == 8
+    # a voxel with no labelled voxel within the radius keeps no class
+    far = occ.copy()
+    far[2, 4, 4] = True
+    g2, st2 = label_grid(far.ravel(), ~far.ravel(), votes, C, names, 0.08, (0, 0, 0), shape, 0.08, None, S)
+    assert g2.labels[2, 4, 4] == 254 and st2["no_class"] == 1
+
+
+def test_transfer_majority_ties_and_order():
+    """transfer_labels: the most common class among the equally nearest candidates; equal counts go to the class
+    with fewer labelled voxels (then the lower id); the result does not depend on the order of the voxels."""
+    from panovocc_cli.gt.lifted import transfer_labels
+
+    shape = (5, 5, 5)
+    lin = lambda *p: np.ravel_multi_index(p, shape)  # noqa: E731
+    cls = np.zeros(125, np.uint8)
+    # voxel (2, 2, 2): class 5 on two faces, class 1 on one -> 5; voxel (0, 0, 0): one face each of class 1
+    # (3 labelled voxels in all) and class 5 (2 + 2 = 4 labelled) -> 1, the rarer; voxel (4, 4, 4): one face
+    # of class 7 and one of class 9, equally rare (1 each) -> 7, the lower id
+    src = np.array([lin(1, 2, 2), lin(3, 2, 2), lin(2, 1, 2), lin(1, 0, 0), lin(0, 1, 0), lin(4, 4, 3), lin(4, 3, 4),
+                    lin(0, 4, 4), lin(4, 0, 4)])
+    cls[src] = [5, 5, 1, 1, 5, 7, 9, 1, 5]
+    dst = np.array([lin(2, 2, 2), lin(0, 0, 0), lin(4, 4, 4)])
+    got = transfer_labels(cls, src, dst, shape, 1.5)
+    assert got.tolist() == [5, 1, 7]
+    rng = np.random.default_rng(0)
+    ps, pd = rng.permutation(len(src)), rng.permutation(len(dst))
+    assert np.array_equal(transfer_labels(cls, src[ps], dst[pd], shape, 1.5), got[pd])
