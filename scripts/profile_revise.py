@@ -8,8 +8,11 @@ Phases: ``load`` (Mapper.load: memory.npz read and rebuilt, the log opened), per
 (DeltaStore.get: the kept record read and decoded), ``delta`` (the new delta computed under the new pose),
 ``swap`` (VoxelMemory.replace), ``encode`` (mapstore.encode_delta of the new record, on the writer thread),
 ``read`` (the frame's depth and colours, on the reader thread); then ``memory_write`` (mapstore.write_memory),
-``save`` (all of ReversibleMemory.save: memory.npz, snapshot, commit) and ``export`` (prediction.npz and
-map.ply: write_exports, GSC labels included); ``total`` is the whole run_revise.
+``save`` (all of ReversibleMemory.save: memory.npz, snapshot, commit; since the fourth pass only its start on
+the calling thread, the rest on the writer thread: ``memory_write``), ``labels`` (Mapper.export: the occupied
+voxels and their GSC labels; since the fourth pass on the calling thread while ``memory_write`` runs) and
+``export`` (prediction.npz and map.ply: write_exports, ``labels`` included when it makes the export itself);
+``close`` (Mapper.close: the wait for the writer thread); ``total`` is the whole run_revise.
 """
 
 from __future__ import annotations
@@ -59,6 +62,8 @@ def main() -> None:
     _timed(mapstore, "write_memory", "memory_write")
     _timed(rpu.ReversibleMemory, "save", "save")
     _timed(pipeline, "write_exports", "export")
+    _timed(mapper.Mapper, "export", "labels")
+    _timed(mapper.Mapper, "close", "close")
     _timed(pipeline.SequenceFrames, "read", "read")
     t0, c0 = time.perf_counter(), time.process_time()
     summary = pipeline.run_revise(args.map, args.poses, progress=False)

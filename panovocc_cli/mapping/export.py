@@ -533,7 +533,8 @@ def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
 
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
                   vocab=(), semantic=None, origin_index=(0, 0, 0), *, previous: Grid | None = None,
-                  changed_keys: np.ndarray | None = None, pieces=None, reader=None, lookup=None) -> MapExport:
+                  changed_keys: np.ndarray | None = None, pieces=None, reader=None, lookup=None,
+                  block: int | None = None) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
@@ -559,6 +560,8 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
         every non-zero voxel's key at once
     lookup : with ``pieces``, the memory's geometry channels at any keys (``VoxelMemory.gather``): the spill
         thinning's neighbours (:func:`thin_spill`; needed with ``occupancy.spill > 0``)
+    block : the GSC cube side in voxels (:func:`label_occupied`; default :data:`~..semantics.gsc.BLOCK`): the
+        same labels whatever it is; a larger cube consolidates fewer halo voxels twice but holds more at once
     """
     if pieces is None:
         pieces = (lambda: [(keys, channels, None)])
@@ -581,7 +584,7 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
                 changed = np.concatenate([changed] + [k[ok] for k, ok in (_neighbour_keys(changed, a, d)
                                                                           for a, d in FACES)])
             changed = np.concatenate([changed, occ_keys[before == UNKNOWN_CLASS]])
-        labels = label_occupied(occ_keys, sub, g, semantic, previous=before, changed_keys=changed)
+        labels = label_occupied(occ_keys, sub, g, semantic, block=block, previous=before, changed_keys=changed)
         grid = apply_labels(grid, occ_keys, labels, vocab, in_place=True)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world
         grid = Grid(grid.labels, index_to_center(grid.index0 + oi, voxel_size), voxel_size, grid.class_names)

@@ -407,16 +407,18 @@ class Mapper:
 
     # -- outputs ---------------------------------------------------------------------------------
     @_locked
-    def export(self, previous: Grid | None = None, changed_keys: np.ndarray | None = None) -> MapExport:
+    def export(self, previous: Grid | None = None, changed_keys: np.ndarray | None = None, *,
+               block: int | None = None) -> MapExport:
         """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory.
         ``previous``: the grid of an export before the voxels ``changed_keys`` changed (an incremental
-        export, the same result: :func:`.export.export_memory`)."""
+        export, the same result: :func:`.export.export_memory`); ``block``: its GSC cube side (the same
+        labels; default :data:`~..semantics.gsc.BLOCK`)."""
         mem = self.memory  # read a slab of the key space at a time (never every non-zero voxel's key at once)
         pieces = (lambda: ((keys, NonzeroChannels(mem, loc), loc) for keys, loc in mem.nonzero_slabs()))
         reader = (lambda loc: OccupiedChannels(NonzeroChannels(mem, loc), np.arange(len(loc))))
         return export_memory(None, None, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
                              self.config, origin_index=self.config.origin_index(), previous=previous,
-                             changed_keys=changed_keys, pieces=pieces, reader=reader,
+                             changed_keys=changed_keys, pieces=pieces, reader=reader, block=block,
                              lookup=lambda keys, names=GEOMETRY_NAMES: mem.gather(keys, names))  # face neighbours
 
     def prediction(self) -> Grid:
@@ -433,7 +435,7 @@ class Mapper:
         self._rpu.checkpoint(background)
 
     @_locked
-    def save(self, folder: str | Path | None = None, *, background: bool = False) -> Path:
+    def save(self, folder: str | Path | None = None, *, background: bool | str = False) -> Path:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 
         Writes the deltas not yet there, then ``memory.npz`` (the commit point), then ``config.json``
@@ -443,7 +445,10 @@ class Mapper:
         ``background=True``: ``memory.npz`` (of the memory as it is at the call), the commit and then
         ``poses.txt`` are written on the delta writer thread while the caller goes on (``map`` writes its
         grid and PLY meanwhile); they are on disk once :meth:`close` returns, which re-raises
-        a failed write (poses.txt is then left as it was).
+        a failed write (poses.txt is then left as it was). ``background=FROZEN`` (:data:`.rpu.FROZEN`): the
+        same, but ``memory.npz`` is streamed from the memory itself on the writer thread, without the copy
+        ``background=True`` takes: the caller must not change the map until :meth:`close` returns (reading
+        it is fine: ``revise`` exports it meanwhile).
         """
         folder = Path(folder) if folder is not None else self.folder
         if folder is None:

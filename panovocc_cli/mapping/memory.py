@@ -395,7 +395,7 @@ def _rehash(block_keys, n_blocks, cap):
     return tk, ts
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _locate(table_keys, table_slots, keys, loc):
     """loc[n] = slot * 512 + offset of voxel keys[n], -1 when its block is not allocated."""
     for n in range(keys.shape[0]):
@@ -404,7 +404,7 @@ def _locate(table_keys, table_slots, keys, loc):
         loc[n] = -1 if s < 0 else s * 512 + o
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _dense_at(geo, loc, out):
     """out[n] = dense row at loc[n] (zeros where loc < 0), int64."""
     for n in range(loc.shape[0]):
@@ -415,7 +415,7 @@ def _dense_at(geo, loc, out):
                 out[n, c] = geo[s, o, c]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _sparse_at(page_of, pages, rows, loc, out):
     """out[n] = sparse row at loc[n] (zeros where the voxel has none), int64."""
     for n in range(loc.shape[0]):
@@ -443,7 +443,7 @@ def _voxel_nonzero(geo, s, o, p, pages, rows):
     return False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _ordered_nonzero(slots, bx, by, geo, page_of, pages, rows, has_sparse, b0, b1, dx0, dx1, loc):
     """The voxels with a non-zero channel, in key order, of the blocks ``slots[b0:b1]`` (sorted by block key,
     whole x-slabs of blocks: block coordinates ``bx`` equal within one), at x offsets ``dx0 <= dx < dx1``
@@ -476,14 +476,14 @@ def _ordered_nonzero(slots, bx, by, geo, page_of, pages, rows, has_sparse, b0, b
     return cnt
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _keys_at(block_keys, loc, out):
     """out[n] = the key of the voxel at location loc[n] (slot * 512 + offset)."""
     for n in range(loc.shape[0]):
         out[n] = _voxel_key(block_keys[loc[n] >> 9], loc[n] & 511)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _has_row(page_of, pages, loc, out):
     """out[n] = whether the voxel at loc[n] owns a sparse-group row."""
     for n in range(loc.shape[0]):

@@ -45,7 +45,7 @@ from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, SEGMENTER_AUT
                      several_sequences)
 from .export import point_chunks
 from .mapper import Mapper
-from .rpu import has_store
+from .rpu import FROZEN, has_store
 
 CONFIG_NAME = mapstore.CONFIG_NAME
 MEMORY_NAME = mapstore.MEMORY_NAME
@@ -659,6 +659,13 @@ def run_revise(cfg: ReviseConfig | str | Path, poses_path: str | Path | None = N
         return _run_revise(out, cfg.poses, cfg.progress)
 
 
+REVISE_GSC_BLOCK = 128
+"""GSC cube side of ``revise``'s export (``map``'s is :data:`~..semantics.gsc.BLOCK`, 64): the same labels, about
+a quarter less CPU on the building (fewer halo voxels consolidated twice) for a larger working set, which
+``map``'s peak (at most 1.5x the memory held) has no room for; ``revise``'s peak is the loaded memory's
+plus the save's and the export's (docs/mapping.md "Building revise, fourth pass")."""
+
+
 def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     cfg = load_config(out)
     n_seq = read_meta(cfg.seq).frames
@@ -689,12 +696,19 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
             mapper.revise_many(((i, new_poses[i], frame) for i, frame in prefetched(reader, changed)),
                                done=lambda _: bar.update(1))
             bar.close()
-            mapper.save(out)
+            # the memory no longer changes: memory.npz is streamed from it on the writer thread (then the
+            # commit, then poses.txt) while this thread exports it; close() waits for the commit and
+            # re-raises a failed write. The grid and PLY are written after the commit, as before.
+            mapper.save(out, background=FROZEN)
+            try:
+                ex = mapper.export(block=REVISE_GSC_BLOCK)
+            finally:
+                mapper.close()
         except BaseException:
             mapper._rpu.rollback()
             raise
     finally:
         mapper.close()
     summary = {"frames": k, "revised": len(changed), "seconds": time.perf_counter() - t0}
-    summary.update(write_exports(out, mapper, cfg.semantic.ply_color))
+    summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
     return summary

@@ -38,6 +38,7 @@ from ..io import mapstore
 from .memory import Delta, FrameDelta, VoxelMemory
 
 SNAPSHOT_NAME = "snapshot.npz"  # in deltas/: the memory snapshot's place in the log
+FROZEN = "frozen"  # ReversibleMemory.save(background=FROZEN): streamed on the writer thread, the memory left as it is
 LEGACY = -1  # shard number of a frame whose delta is a file of its own (maps made before the log)
 
 
@@ -437,13 +438,15 @@ class ReversibleMemory:
             raise PanovoccError("a checkpoint needs a folder (this memory keeps its deltas in RAM)")
         self.store.commit(background)
 
-    def save(self, folder: str | Path, background: bool = False, after=None) -> None:
+    def save(self, folder: str | Path, background: bool | str = False, after=None) -> None:
         """Persist into ``folder``: every kept delta and a COMMIT, then the memory snapshot ``memory.npz``
         and ``deltas/snapshot.npz``; then ``after()`` (if given), once the commit is made.
 
         ``memory.npz`` lists the kept frames' poses in id order; their ids are stored too unless they are
         ``0..n-1`` (a map run's file keeps its historical bytes). ``background``: the snapshot, the
-        commit and ``after`` run on the writer thread from the memory as it is now."""
+        commit and ``after`` run on the writer thread from the memory as it is now; :data:`FROZEN`: on the
+        writer thread too, but streamed from the memory itself (no copy): the caller promises not to change
+        the memory until :meth:`close` returns (it may read it meanwhile, e.g. export it)."""
         self._flush()
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -454,18 +457,25 @@ class ReversibleMemory:
         # in the foreground, memory.npz is streamed from the memory a key range at a time (no copy of every
         # voxel's keys and channels, docs/mapping.md "Memory layout"); in the background it is taken now, as
         # whole arrays: the memory may change while the write runs. Both give the same bytes.
-        arrays = self.memory.to_arrays(sparse=True) if background else self.memory.chunked()
-        store = self.store
+        # FROZEN streams it on the writer thread (the scan included): the memory does not change meanwhile.
+        if background == FROZEN:
+            arrays = None
+        elif background:
+            arrays = self.memory.to_arrays(sparse=True)
+        else:
+            arrays = self.memory.chunked()
+        memory, store = self.memory, self.store
 
         def write():  # before the commit: a failure here leaves the folder's committed state as it was
             index = store.snapshot_index()
-            mapstore.write_memory(folder, arrays, len(ids), poses, None if plain else ids)
+            mapstore.write_memory(folder, memory.chunked() if arrays is None else arrays, len(ids), poses,
+                                  None if plain else ids)
             index["memory_sha256"] = np.array(_sha256(folder / mapstore.MEMORY_NAME))
             from ..io.npz import write_npz
 
             write_npz(folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
 
-        store.commit(background, before=write, after=after)
+        store.commit(bool(background), before=write, after=after)
 
     def rollback(self) -> None:
         """After a failed command: cut the uncommitted records (the memory object is not usable after)."""

@@ -7,7 +7,7 @@ import numba as nb
 import numpy as np
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)  # releases the GIL: revise exports while memory.npz is written
 def iterate(indptr, indices, data, q, anchor, inv, live, lam, iterations):
     """``iterations`` steps of ``q <- (anchor + lam (W_bar q)) inv`` on the live rows (the others keep q), W_bar
     a CSR matrix (indptr, indices, data) float32: each step in one pass over the rows, into a second buffer.

@@ -16,6 +16,7 @@ from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.mapping import Frame, Mapper, MapperConfig
 from panovocc_cli.mapping.params import GeometryParams
 from panovocc_cli.mapping.pipeline import MapConfig, load_config, run_map, run_revise, sequence_frames
+from panovocc_cli.mapping.rpu import FROZEN
 
 W = 64
 N = 5
@@ -613,10 +614,12 @@ def test_poses_that_are_not_rigid_are_refused_naming_the_frame(mapped):
     assert m.integrate(dataclasses.replace(f, T_world_cam=f.T_world_cam + 1e-9)) == 1  # within the tolerance
 
 
-def test_a_background_save_writes_poses_only_after_its_commit(mapped, tmp_path, monkeypatch):
-    """``save(background=True)`` (what ``revise`` overlaps with the export) writes poses.txt after the
-    memory's commit: a memory write that fails leaves poses.txt, memory.npz and the committed map as they
-    were, and the error comes out of ``close``."""
+@pytest.mark.parametrize("background", [True, FROZEN])
+def test_a_background_save_writes_poses_only_after_its_commit(mapped, tmp_path, monkeypatch, background):
+    """``save(background=True)`` (what ``map`` overlaps with its grid and PLY) and ``save(background=FROZEN)``
+    (what ``revise`` overlaps with its export) write poses.txt after the memory's commit: a memory write that
+    fails leaves poses.txt, memory.npz and the committed map as they were, and the error comes out of
+    ``close``."""
     _, cfg, frames = mapped
     folder = tmp_path / "m"
     m = Mapper(cfg.mapper_config(), folder=folder, frame_source=frames)
@@ -631,7 +634,7 @@ def test_a_background_save_writes_poses_only_after_its_commit(mapped, tmp_path, 
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(mapstore, "write_memory", disk_full)
-    m.save(background=True)
+    m.save(background=background)
     with pytest.raises(OSError, match="No space"):
         m.close()
     m._rpu.rollback()
@@ -639,3 +642,45 @@ def test_a_background_save_writes_poses_only_after_its_commit(mapped, tmp_path, 
     back = Mapper.load(folder)
     assert np.array_equal(back.pose(1), old_T)
     back.close()
+
+
+def test_a_frozen_save_streams_the_memory_on_the_writer_thread_while_it_is_exported(mapped, tmp_path, monkeypatch):
+    """``save(background=FROZEN)`` (``revise``, issue 21): memory.npz is streamed from the memory itself on the
+    writer thread (no whole copy: ``to_arrays`` is never called) while the caller exports the same memory;
+    memory.npz, poses.txt and the snapshot index are the bytes of a foreground save, and the export made
+    meanwhile (with cubes of 4 voxels) labels as a later one with the default cube."""
+    import threading
+
+    from panovocc_cli.mapping.memory import MemoryChunks, VoxelMemory
+
+    _, cfg, frames = mapped
+    names = ("memory.npz", "poses.txt", "deltas/snapshot.npz")
+    out = {}
+    for arm in ("fg", "frozen"):
+        folder = tmp_path / arm
+        m = Mapper(cfg.mapper_config(), folder=folder, frame_source=frames)
+        for i in range(4):
+            m.integrate(frames(i))
+        m.revise(2, _moved(m.pose(2), 5))
+        if arm == "fg":
+            m.save()
+            ex = m.export(block=4)
+        else:
+            readers, real = [], MemoryChunks.chunks
+            monkeypatch.setattr(MemoryChunks, "chunks", lambda self, *a, **k: (
+                readers.append(threading.current_thread() is not threading.main_thread()), real(self, *a, **k))[1])
+            monkeypatch.setattr(VoxelMemory, "to_arrays", lambda *a, **k: pytest.fail("a frozen save copies the memory"))
+            m.save(background=FROZEN)
+            ex = m.export(block=4)  # cubes of 4 voxels: many cubes, the same labels
+            m.close()
+            monkeypatch.undo()
+            assert readers and all(readers)  # streamed on the writer thread only
+        m.close()
+        out[arm] = ({n: (folder / n).read_bytes() for n in names}, ex)
+    assert out["fg"][0] == out["frozen"][0]
+    a, b = out["fg"][1], out["frozen"][1]
+    assert np.array_equal(a.grid.labels, b.grid.labels) and np.array_equal(a.labels, b.labels)
+    back = Mapper.load(tmp_path / "frozen")
+    ref = back.export()  # the default cube: the same labels as cubes of 4
+    back.close()
+    assert np.array_equal(ref.labels, b.labels) and np.array_equal(ref.grid.labels, b.grid.labels)

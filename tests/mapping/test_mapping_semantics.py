@@ -300,3 +300,67 @@ def test_the_export_a_block_at_a_time_equals_one_pass(default_map, monkeypatch):
     S = small.channels["S"]
     assert S.base is None or S.base.shape == S.shape  # a copy of the column, not a view of the group
     assert np.array_equal(S, one.channels["S"]) and "E" in small.channels and "nope" not in small.channels
+
+
+def _tree(folder):
+    """Every file under ``folder`` (relative path -> bytes): what a failed command must leave as it was."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_revise_exports_while_memory_npz_is_written_and_a_failure_on_either_thread(sem_seq, default_map, tmp_path,
+                                                                                     monkeypatch, capsys):
+    """``revise`` (issue 21) streams memory.npz on the writer thread while the calling thread exports the revised
+    memory with GSC cubes of ``REVISE_GSC_BLOCK`` voxels, then writes prediction.npz and map.ply after the
+    commit. A write that fails part-way on the writer thread: one line, exit 2, every file of the map as it
+    was (no temporary left). An export that fails: the error comes out once the commit is made (as when the
+    export followed the save), the grid and PLY as they were; a second revise writes them. The result, with
+    cubes of 3 voxels (many cubes), is the bytes of a map made from the final poses."""
+    from panovocc_cli.cli import main
+    from panovocc_cli.mapping import Mapper, export, pipeline
+    from panovocc_cli.mapping.memory import MemoryChunks
+
+    direct, _ = default_map
+    wrong = circle_poses(N)
+    wrong[2, :3, 3] += 0.07
+    write_poses(tmp_path / "wrong.txt", wrong)
+    rev = tmp_path / "rev"
+    run_map(MapConfig(seq=str(sem_seq), out=str(rev), checkpoint_every=2, poses=str(tmp_path / "wrong.txt")),
+            progress=False)
+    before = _tree(rev)
+
+    real_chunks = MemoryChunks.chunks
+
+    def fails_part_way(self, *a, **k):  # the temporary memory.npz is open when the disk fills
+        for n, item in enumerate(real_chunks(self, *a, **k)):
+            if n == 1:
+                raise OSError(28, "No space left on device")
+            yield item
+
+    monkeypatch.setattr(MemoryChunks, "chunks", fails_part_way)
+    monkeypatch.setattr(pipeline, "REVISE_GSC_BLOCK", 3)
+    with pytest.raises(SystemExit) as e:
+        main(["revise", str(rev), str(sem_seq / "poses.txt"), "--quiet"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and "No space" in err
+    assert _tree(rev) == before
+    monkeypatch.setattr(MemoryChunks, "chunks", real_chunks)
+
+    def no_memory(*a, **k):
+        raise MemoryError("export")
+
+    real_export = Mapper.export
+    monkeypatch.setattr(Mapper, "export", no_memory)
+    with pytest.raises(MemoryError):
+        run_revise(rev, sem_seq / "poses.txt", progress=False)
+    after = _tree(rev)
+    assert after["memory.npz"] == (direct / "memory.npz").read_bytes()  # committed: the save was waited for
+    assert {n: after[n] for n in ("prediction.npz", "map.ply")} == {n: before[n] for n in ("prediction.npz", "map.ply")}
+    assert not [n for n in after if n.rsplit("/", 1)[-1].startswith(".")]  # no temporary left
+
+    blocks = []
+    real_blocks = export.consolidate_blocks
+    monkeypatch.setattr(Mapper, "export", real_export)
+    monkeypatch.setattr(export, "consolidate_blocks", lambda *a, **k: blocks.append(k["block"]) or real_blocks(*a, **k))
+    assert run_revise(rev, sem_seq / "poses.txt", progress=False)["revised"] == 0
+    assert blocks == [3] and _bytes(rev) == _bytes(direct)
+    assert (rev / "poses.txt").read_bytes() == (direct / "poses.txt").read_bytes()
