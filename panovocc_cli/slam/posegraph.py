@@ -10,7 +10,7 @@ be wrong; odometry edges are trusted.
 * ``open3d`` (:func:`solve_open3d`): Levenberg-Marquardt over the whole graph each time; its line process
   weighs an uncertain edge by ``(mu / (mu + r^2))^2`` (``r^2 = e' Info e``, ``mu = max_corr^2`` times the
   graph's mean number of correspondences) and prunes it below 0.25. Open3D builds the normal equations as a
-  dense matrix: the cost of one solve grows with the cube of the number of keyframes.
+  dense matrix (its factorisation cubic in the number of keyframes).
 * ``isam2`` (:class:`IncrementalGraph`): each keyframe adds its node and its edges as GTSAM
   ``BetweenFactorPose3`` factors to an ``ISAM2``, which re-eliminates only the part of the Bayes tree the new
   factors touch. The information matrix is moved to GTSAM's tangent (:func:`gtsam_information`), and an
@@ -32,6 +32,7 @@ from .registration import open3d_threads
 
 OPTIMISERS = ("isam2", "open3d")
 PRIOR_SIGMA = 1e-6  # metres and radians: the first keyframe's prior (it is held where it is)
+RIDGE = 1e-9  # relative floor of every edge's information (:func:`_factor`)
 
 
 def gtsam_information(info: np.ndarray, T_target_source: np.ndarray) -> np.ndarray:
@@ -55,7 +56,11 @@ def _factor(source: int, target: int, T: np.ndarray, info: np.ndarray, uncertain
     robust (Geman-McClure, ``c^2 = max_corr_m^2 * N``, N = Open3D's correspondence count ``info[5, 5]``)."""
     import gtsam
 
-    noise = gtsam.noiseModel.Gaussian.Information(gtsam_information(info, T))
+    L = gtsam_information(info, T)
+    # a floor of 1e-9 of the largest entry: an edge whose points constrain some direction not at all (a frame
+    # seeing one plane) leaves the system solvable, as Open3D's damping does (no effect on the poses otherwise)
+    L = L + RIDGE * max(float(np.abs(L).max()), 1.0) * np.eye(6)
+    noise = gtsam.noiseModel.Gaussian.Information(L)
     if uncertain:
         c = max_corr_m * float(np.sqrt(max(float(info[5, 5]), 1.0)))
         noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.GemanMcClure.Create(c), noise)

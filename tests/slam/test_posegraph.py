@@ -134,3 +134,18 @@ def test_far_from_origin_gives_the_same_relative_poses(loop_seq, optimiser):
         C = tr.committed()
         out.append(np.stack([np.linalg.inv(C[0]) @ C[i] for i in sorted(C)]))
     assert np.abs(out[0] - out[1]).max() < 1e-6
+
+
+def test_an_edge_blind_in_one_direction_leaves_the_graph_solvable(monkeypatch):
+    """A keyframe pair that sees one plane constrains nothing along it: Open3D's damping copes, and so must
+    iSAM2 (GTSAM refuses an indeterminate system without the information's floor, ``posegraph.RIDGE``)."""
+    import panovocc_cli.slam.posegraph as pg
+
+    T = _pose([0.0, 0.1, 0.0], [0.4, 0.0, 0.0])
+    blind = np.diag([100.0, 100.0, 100.0, 100.0, 100.0, 0.0])  # nothing along z
+    for solve in (lambda: _incremental([(1, 0, T, blind, False)], 2, np.stack([np.eye(4), T])),
+                  lambda: solve_batch(np.stack([np.eye(4), T]), [(1, 0, T, blind, False)], 0.1)):
+        assert np.allclose(solve()[1], T, atol=1e-9)
+    monkeypatch.setattr(pg, "RIDGE", 0.0)
+    with pytest.raises(RuntimeError):
+        _incremental([(1, 0, T, blind, False)], 2, np.stack([np.eye(4), T]))
