@@ -31,15 +31,18 @@ frame's pose, ``T_world_first``):
    verified by registration from the current estimate and accepted at fitness >= ``loop_fitness``
    (``loop_max_corr_m``) when its correction of the estimate lies within ``loop_sigmas`` sigmas.
    Accepted candidates become uncertain edges.
-5. **Pose-graph optimisation** (Open3D's ``global_optimization``, Levenberg-Marquardt, line-process
-   pruning of wrong loop edges) runs when a new loop edge disagrees with the estimate by more than
-   ``loop_optimise_m`` / ``loop_optimise_deg`` (an agreeing edge waits in the graph for the next one);
-   keyframe poses move, and every placed frame follows its keyframe
+5. **Pose-graph optimisation** (:mod:`.posegraph`, ``optimiser``): with ``isam2`` every new keyframe adds its
+   node and edges to GTSAM's iSAM2 (incremental; robust Geman-McClure kernel on loop edges), with ``open3d``
+   the whole graph is solved by Open3D's ``global_optimization`` (line-process pruning of wrong loop edges).
+   The keyframe poses are read back (iSAM2: after further updates until none relinearises) when a new loop
+   edge disagrees with the estimate by more than ``loop_optimise_m`` / ``loop_optimise_deg`` (an agreeing
+   edge waits for the next one); keyframe poses move, and every placed frame follows its keyframe
    (``T_world_frame = T_world_kf · T_kf_frame``).
 
 6. **Final refinement** (:meth:`Tracker.finish`, ``refine*``): every keyframe registered to its
    ``refine_partners`` nearest older keyframes within ``refine_radius_m`` (a KD-tree), the odometry edges
-   registered again, the graph optimised; ``refine_passes`` passes, and optionally one every
+   registered again, the graph optimised in one batch (GTSAM's Levenberg-Marquardt with the iSAM2 factors, or
+   Open3D's); ``refine_passes`` passes, and optionally one every
    ``refine_every`` keyframes. Every frame it moved by more than ``final_revise_m`` / ``final_revise_deg``
    is returned as a revision.
 7. **Bounded store.** Only the ``kf_held`` keyframes used last keep their registration structures; the
@@ -63,7 +66,8 @@ import numpy as np
 
 from ..geometry import erp
 from ..geometry.drift import so3_exp
-from .registration import BACKENDS, Cloud, Registration, erp_points, open3d_threads
+from .posegraph import OPTIMISERS, IncrementalGraph, solve_batch, solve_open3d
+from .registration import BACKENDS, Cloud, Registration, erp_points
 
 TRACKED, KEYFRAME, RELOCALISED, LOST = "tracked", "keyframe", "relocalised", "lost"
 
@@ -79,6 +83,9 @@ class SlamParams:
     seeds 0 and 1 at 512 x 256, docs/slam.md)."""
 
     backend: str = "small_gicp"
+    optimiser: str = "isam2"        # pose graph: GTSAM iSAM2 (incremental) or "open3d" (whole graph each time)
+    isam_relinearize: float = 1e-4  # iSAM2: relinearise a variable whose update exceeds this (rad, m; 1e-3: 2e-6 from LM)
+    isam_iterations: int = 10       # iSAM2: at most this many further updates when the poses are read back
     voxel_m: float = 0.1
     stride: int = 0                 # pixel stride of the point cloud; 0 = max(1, W // 256)
     min_range_m: float = 0.2
@@ -134,6 +141,8 @@ class SlamParams:
     def check(self) -> "SlamParams":
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.optimiser not in OPTIMISERS:
+            raise ValueError(f"optimiser must be one of {OPTIMISERS}, got {self.optimiser!r}")
         return self
 
 
@@ -218,6 +227,8 @@ class Tracker:
         self.relocalised: list[int] = []
         self.loops: list[tuple[int, int]] = []
         self.optimisations = 0
+        self._graph: IncrementalGraph | None = None  # iSAM2's graph (optimiser "isam2"), rebuilt after a refinement
+        self._synced = 0  # edges of self._edges already in it
         self.refinements = 0
         self._ref = 0
         self._last: tuple[int, np.ndarray] | None = None
@@ -440,6 +451,7 @@ class Tracker:
             self._placed[fid] = (new, np.eye(4))
             self._ref = new
             loops, urgent = self._close_loops(new)
+            self._sync()  # iSAM2: the new keyframes and edges, one update
             periodic = p.refine_every > 0 and len(self.keyframes) % p.refine_every == 0
             if periodic:  # its optimisation takes the new loop edges too
                 self.refine(revise=False)
@@ -571,7 +583,7 @@ class Tracker:
             info = self.reg.information(a, b, r.T_target_source, p.loop_max_corr_m)
             edges.append((s, t, r.T_target_source.copy(), info, True))
         self._edges = edges
-        self._optimise()
+        self._optimise(batch=True)
         self.refinements += 1
         return self._revisions(exclude=-1) if revise else []
 
@@ -586,28 +598,41 @@ class Tracker:
             self.refine(revise=False)
         return self._revisions(exclude=-1, trans_m=p.final_revise_m, rot_deg=p.final_revise_deg)
 
-    def _optimise(self) -> None:
-        """Open3D global optimisation of the keyframe pose graph; keyframe poses updated in place.
+    def _sync(self) -> None:
+        """Optimiser ``isam2``: add the keyframes and edges not yet in the incremental graph (one iSAM2 update;
+        the graph is rebuilt from every edge after a refinement replaced them). Initial poses in the first
+        keyframe's frame."""
+        p = self.params
+        if p.optimiser != "isam2":
+            return
+        if self._graph is None:
+            self._graph = IncrementalGraph(p.loop_max_corr_m, p.isam_relinearize, p.isam_iterations)
+            self._synced = 0
+        T0_inv = np.linalg.inv(self.keyframes[0].T_world)
+        new = [T0_inv @ kf.T_world for kf in self.keyframes[self._graph.nodes:]]
+        self._graph.add(new, self._edges[self._synced:])
+        self._synced = len(self._edges)
 
+    def _optimise(self, batch: bool = False) -> None:
+        """Optimise the keyframe pose graph (:mod:`.posegraph`, ``optimiser``); keyframe poses updated in place.
+
+        ``isam2``: the incremental graph's estimate (``batch``: GTSAM's Levenberg-Marquardt over every edge, the
+        incremental graph then rebuilt from them); ``open3d``: Open3D's global optimisation of the whole graph.
         Solved in the first keyframe's frame (it is held fixed): the same relative edges give the same
         relative poses in any world (a world far from the origin, ``--first-pose``), to rounding."""
-        import open3d as o3d
-
-        reg = o3d.pipelines.registration
-        g = reg.PoseGraph()
+        p = self.params
         T0 = self.keyframes[0].T_world.copy()
         T0_inv = np.linalg.inv(T0)
-        for kf in self.keyframes:
-            g.nodes.append(reg.PoseGraphNode(T0_inv @ kf.T_world))
-        for s, t, T, info, uncertain in self._edges:
-            g.edges.append(reg.PoseGraphEdge(s, t, T, info, uncertain))
-        opt = reg.GlobalOptimizationOption(max_correspondence_distance=self.params.loop_max_corr_m,
-                                           edge_prune_threshold=0.25, preference_loop_closure=1.0, reference_node=0)
-        with open3d_threads(1):  # the same graph gives the same poses, bit for bit
-            reg.global_optimization(g, reg.GlobalOptimizationLevenbergMarquardt(),
-                                    reg.GlobalOptimizationConvergenceCriteria(), opt)
-        for kf, node in zip(self.keyframes[1:], list(g.nodes)[1:]):
-            kf.T_world = T0 @ np.asarray(node.pose, np.float64)
+        if p.optimiser == "open3d" or batch:
+            poses = np.stack([T0_inv @ kf.T_world for kf in self.keyframes])
+            solve = solve_open3d if p.optimiser == "open3d" else solve_batch
+            P = solve(poses, self._edges, p.loop_max_corr_m)
+            self._graph = None
+        else:
+            self._sync()
+            P = self._graph.estimate()
+        for kf, Pk in zip(self.keyframes[1:], P[1:]):
+            kf.T_world = T0 @ Pk
         self.optimisations += 1
 
     def _revisions(self, exclude: int, trans_m: float | None = None, rot_deg: float | None = None) -> list[tuple[int, np.ndarray]]:
