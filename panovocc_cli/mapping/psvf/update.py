@@ -19,7 +19,7 @@ import numpy as np
 from ...errors import PanovoccError
 from ...geometry.lattice import pack_index
 from ...runtime import keep_freed_heap  # noqa: F401 (applied by runtime.setup(), not at import)
-from ..freespace import carve
+from ..freespace import carve, free_thresholds
 from ..memory import FIXED_SCALE, Delta
 from ..params import EXTENTS, KERNELS, GeometryParams
 from .rays import lift_kernels
@@ -88,9 +88,9 @@ def _voxel_row(a, hit, o, scale, n_fill, observe_hits):
 
 @nb.njit(cache=True, parallel=True)
 def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
-    """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support, a
-    measurement or O != 0. Two passes over slabs of constant i (count, then fill at each slab's prefix
-    offset)."""
+    """The voxels with support, a measurement or O != 0, in lattice order: their keys (int64), A (fixed point,
+    int64) and N, F, O (uint8 (cnt, 3)). Two passes over slabs of constant i (count, then fill at each slab's
+    prefix offset). :func:`_delta_rows` joins the parts of a frame box into the delta's rows."""
     nx, ny, nz = A.shape
     counts = np.zeros(nx + 1, np.int64)
     for i in nb.prange(nx):
@@ -104,7 +104,8 @@ def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
         counts[i + 1] += counts[i]
     cnt = counts[nx]
     keys = np.empty(cnt, np.int64)
-    out = np.empty((cnt, 4), np.int64)
+    a_out = np.empty(cnt, np.int64)
+    nfo = np.empty((cnt, 3), np.uint8)
     for i in nb.prange(nx):
         n = counts[i]
         for j in range(ny):
@@ -112,12 +113,28 @@ def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
                 a, nn, oo, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill, observe_hits)
                 if keep:
                     keys[n] = _pack(i + lo[0], j + lo[1], k + lo[2])
-                    out[n, 0] = a
-                    out[n, 1] = nn
-                    out[n, 2] = F[i, j, k]
-                    out[n, 3] = oo
+                    a_out[n] = a
+                    nfo[n, 0] = nn
+                    nfo[n, 1] = F[i, j, k]
+                    nfo[n, 2] = oo
                     n += 1
-    return keys, out
+    return keys, a_out, nfo
+
+
+def _delta_rows(parts) -> tuple:
+    """The frame's keys (n,) int64 and rows (n, 4) int64 (A N F O) from its box's :func:`_extract` parts, in
+    order (each written once into the arrays the delta keeps: no second copy of every row)."""
+    n = sum(len(k) for k, _, _ in parts)
+    keys = np.empty(n, np.int64)
+    rows = np.empty((n, 4), np.int64)
+    o = 0
+    for k, a, nfo in parts:
+        m = len(k)
+        keys[o:o + m] = k
+        rows[o:o + m, 0] = a
+        rows[o:o + m, 1:] = nfo
+        o += m
+    return keys, rows
 
 
 @nb.njit(cache=True)
@@ -195,8 +212,8 @@ def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
         x, Pt, half, w, ax, sa, bb, surf = surfels_for(depth, T_world_cam, p, c_norm)
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
-        A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
-        d = _finish(A, x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
+        d = _finish(lambda lo_s, shape_s: splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo_s, shape_s),
+                    x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
         return (d, offset_delta(x, ax, T_world_cam[:3, 3], p.voxel_size)) if offsets else (d,)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
@@ -214,8 +231,8 @@ def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
         box_half = half + 0.5 * p.voxel_size * np.abs(er) / p.kappa  # the splat's reach includes the chord
     lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
     _check_box(shape)
-    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
-    d = _finish(A, x, depth, T_world_cam, p, lo, shape)
+    d = _finish(lambda lo_s, shape_s: splat(x, P, half, w, p.kappa, p.voxel_size, lo_s, shape_s, kern, er, sr),
+                x, depth, T_world_cam, p, lo, shape)
     if not offsets:
         return (d,)
     v = T_world_cam[:3, 3] - x  # these kernels have no normal: the ray, towards the camera
@@ -286,23 +303,46 @@ def _check_box(shape) -> None:
                             "lower --max-range or raise --voxel-size")
 
 
-def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
-    """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
+SLAB_VOXELS = 1 << 18
+"""A frame box is splatted, carved and extracted a slab of whole x-planes at a time, about this many voxels
+(at least one plane): the frame's dense working set (two float64 support grids, F, O and the hit flags:
+19 bytes a voxel) stays bounded by the slab, not the box (docs/mapping.md, "Memory layout"). The delta is
+the same bit for bit whatever the slab (each voxel's support sums the same kernels in the same order)."""
+
+
+def _finish(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
+    """Support, free-space test and extraction of the frame's sparse delta, a slab of the frame box (``lo``,
+    ``shape``) at a time: ``splat_box(lo_s, shape_s)`` gives the dense support grid A of a part of the box;
     its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
     kernel's ``surfels`` = (axes (n, 3), scales (n,) metres, surfel flags (n,) uint8), so do the voxels
     that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max; a surfel with
     s - n_floor > hit_max whose segment ``x +- hit_amb (s - n_floor) n`` crosses a face marks none)."""
-    F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
-                 p.min_range, p.max_range, p.carve_extent)
-    hits = np.zeros(A.shape, np.uint8)
-    if surfels is not None and (p.hit_k > 0 or p.hit_amb > 0):
-        ax, sa, surf = surfels
-        _mark_hits_axis(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(ax, np.float64),
-                        np.ascontiguousarray(sa, np.float64), np.ascontiguousarray(surf), float(p.n_floor),
-                        float(p.hit_k), float(p.hit_max), float(p.hit_amb), float(p.voxel_size),
-                        np.asarray(lo, np.int64), hits)
-    else:
-        _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
+    lo = np.asarray(lo, np.int64)
+    nx, ny, nz = (int(s) for s in shape)
+    fthr = free_thresholds(depth, T_world_cam, p.voxel_size, p.eps_abs, p.eps_rel, p.stable_k, p.carve_extent)
     n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
-    keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill, bool(p.observe_hits))
+    x = np.ascontiguousarray(x, np.float64)
+    if surfels is not None and (p.hit_k > 0 or p.hit_amb > 0):
+        ax, sa, surf = (np.ascontiguousarray(a) for a in surfels)
+        ax, sa = ax.astype(np.float64, copy=False), sa.astype(np.float64, copy=False)
+    else:
+        surfels = None
+    step = max(1, SLAB_VOXELS // max(ny * nz, 1))
+    parts = []
+    for i0 in range(0, nx, step):
+        lo_s = lo + np.array([i0, 0, 0], np.int64)
+        shape_s = (min(step, nx - i0), ny, nz)
+        A = splat_box(lo_s, shape_s)
+        F, O = carve(depth, T_world_cam, p.voxel_size, lo_s, shape_s, p.eps_abs, p.eps_rel, p.stable_k,
+                     p.min_range, p.max_range, p.carve_extent, fthr=fthr)
+        hits = np.zeros(shape_s, np.uint8)
+        if surfels is not None:
+            _mark_hits_axis(x, ax, sa, surf, float(p.n_floor), float(p.hit_k), float(p.hit_max), float(p.hit_amb),
+                            float(p.voxel_size), lo_s, hits)
+        else:
+            _mark_hits(x, float(p.voxel_size), lo_s, hits)
+        parts.append(_extract(A, hits, F, O, lo_s, float(FIXED_SCALE), n_fill, bool(p.observe_hits)))
+        del A, F, O, hits
+    keys, rows = _delta_rows(parts)
+    del parts
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})
