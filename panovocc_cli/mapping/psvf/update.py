@@ -9,6 +9,9 @@
    it along the normal: a plane on a voxel face counts in both voxels; a noisy measurement within
    ``hit_amb`` s_n of a face counts in neither), or where A >= ``n_fill``;
 6. extraction of the voxels with support, a measurement or a comparison, in lattice order.
+
+Steps 3-6 run a slab of whole x-planes of the frame box at a time (:data:`SLAB_VOXELS`), so the dense grids
+a frame needs are a slab's, not its box's; the delta is the same bit for bit.
 """
 
 from __future__ import annotations
@@ -121,6 +124,18 @@ def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
     return keys, a_out, nfo
 
 
+@nb.njit(cache=True, parallel=True)
+def _put_rows(keys, rows, o, k, a, nfo):
+    """Write one :func:`_extract` part (keys ``k``, A ``a``, N F O ``nfo``) into ``keys`` and ``rows`` (n, 4)
+    int64 from row ``o`` on."""
+    for r in nb.prange(k.shape[0]):
+        keys[o + r] = k[r]
+        rows[o + r, 0] = a[r]
+        rows[o + r, 1] = nfo[r, 0]
+        rows[o + r, 2] = nfo[r, 1]
+        rows[o + r, 3] = nfo[r, 2]
+
+
 def _delta_rows(parts) -> tuple:
     """The frame's keys (n,) int64 and rows (n, 4) int64 (A N F O) from its box's :func:`_extract` parts, in
     order (each written once into the arrays the delta keeps: no second copy of every row)."""
@@ -129,11 +144,8 @@ def _delta_rows(parts) -> tuple:
     rows = np.empty((n, 4), np.int64)
     o = 0
     for k, a, nfo in parts:
-        m = len(k)
-        keys[o:o + m] = k
-        rows[o:o + m, 0] = a
-        rows[o:o + m, 1:] = nfo
-        o += m
+        _put_rows(keys, rows, o, k, a, nfo)
+        o += len(k)
     return keys, rows
 
 
