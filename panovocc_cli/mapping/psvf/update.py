@@ -35,25 +35,31 @@ MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this
 _pack = nb.njit(inline="always")(pack_index)  # the lattice's key layout, compiled into _extract
 
 @nb.njit(cache=True)
-def _mark_hits(x, h, lo, hits):
-    """Set ``hits`` (uint8 frame grid) to 1 in the voxels that contain a measurement x (metres, world)."""
+def _hit_cells(x, h, lo, nx, ny, nz):
+    """The frame box's cells ((i ny + j) nz + k, int64) that contain a measurement x (metres, world); a cell
+    may repeat (:func:`_mark_cells` sets the flags of a slab of the box from them)."""
+    cells = np.empty(x.shape[0], np.int64)
+    m = 0
     for p in range(x.shape[0]):
-        i, j, k, inside = local_voxel(x, p, h, lo, hits.shape)
+        i, j, k, inside = local_voxel(x, p, h, lo, (nx, ny, nz))
         if inside:
-            hits[i, j, k] = 1
+            cells[m] = (i * ny + j) * nz + k
+            m += 1
+    return cells[:m]
 
 
 @nb.njit(cache=True)
-def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, hits):
-    """Set ``hits`` to 1 in the voxels that contain a measurement x and, for a precise surfel (``surf`` 1,
-    ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position along the
-    normal), in those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
+def _hit_cells_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, nx, ny, nz):
+    """The frame box's cells (as :func:`_hit_cells`) that contain a measurement x and, for a precise surfel
+    (``surf`` 1, ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position
+    along the normal), those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
     measurement that close to a voxel face counts as a view of both voxels of the face. An imprecise
     surfel (s > s_max) whose segment ``x +- k_amb s axis`` crosses a voxel face marks no voxel: its own
     noise does not say on which side of the face the surface lies, and counting it in the voxel it fell
     in makes a plane within a few s of a face occupy both voxels (each noisy frame spills into the far
     one). ``k_amb = 0`` counts every imprecise measurement where it fell."""
-    nx, ny, nz = hits.shape
+    cells = np.empty(3 * x.shape[0], np.int64)
+    m = 0
     for p in range(x.shape[0]):
         s = max(sa[p] - n_floor, 0.0) if surf[p] != 0 else 0.0
         if s > s_max:
@@ -74,7 +80,19 @@ def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, hits):
             j = int(np.floor((x[p, 1] + f * ax[p, 1]) / h)) - lo[1]
             kk = int(np.floor((x[p, 2] + f * ax[p, 2]) / h)) - lo[2]
             if 0 <= i < nx and 0 <= j < ny and 0 <= kk < nz:
-                hits[i, j, kk] = 1
+                cells[m] = (i * ny + j) * nz + kk
+                m += 1
+    return cells[:m]
+
+
+@nb.njit(cache=True)
+def _mark_cells(cells, first, hits):
+    """Set ``hits`` (uint8, the frame box's x-planes ``first``.. of it) to 1 in those of ``cells`` it holds."""
+    flat = hits.reshape(hits.size)
+    c0 = first * hits.shape[1] * hits.shape[2]
+    for c in cells:
+        if c0 <= c < c0 + flat.size:
+            flat[c - c0] = 1
 
 
 @nb.njit(cache=True, inline="always")
@@ -335,10 +353,12 @@ def _finish(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surf
     n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
     x = np.ascontiguousarray(x, np.float64)
     if surfels is not None and (p.hit_k > 0 or p.hit_amb > 0):
-        ax, sa, surf = (np.ascontiguousarray(a) for a in surfels)
-        ax, sa = ax.astype(np.float64, copy=False), sa.astype(np.float64, copy=False)
+        ax, sa, surf = surfels
+        cells = _hit_cells_axis(x, np.ascontiguousarray(ax, np.float64), np.ascontiguousarray(sa, np.float64),
+                                np.ascontiguousarray(surf), float(p.n_floor), float(p.hit_k), float(p.hit_max),
+                                float(p.hit_amb), float(p.voxel_size), lo, nx, ny, nz)
     else:
-        surfels = None
+        cells = _hit_cells(x, float(p.voxel_size), lo, nx, ny, nz)
     step = max(1, SLAB_VOXELS // max(ny * nz, 1))
     parts = []
     for i0 in range(0, nx, step):
@@ -348,11 +368,7 @@ def _finish(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surf
         F, O = carve(depth, T_world_cam, p.voxel_size, lo_s, shape_s, p.eps_abs, p.eps_rel, p.stable_k,
                      p.min_range, p.max_range, p.carve_extent, fthr=fthr)
         hits = np.zeros(shape_s, np.uint8)
-        if surfels is not None:
-            _mark_hits_axis(x, ax, sa, surf, float(p.n_floor), float(p.hit_k), float(p.hit_max), float(p.hit_amb),
-                            float(p.voxel_size), lo_s, hits)
-        else:
-            _mark_hits(x, float(p.voxel_size), lo_s, hits)
+        _mark_cells(cells, i0, hits)
         parts.append(_extract(A, hits, F, O, lo_s, float(FIXED_SCALE), n_fill, bool(p.observe_hits)))
         del A, F, O, hits
     keys, rows = _delta_rows(parts)
