@@ -122,8 +122,17 @@ def _carve(depth, fthr, Rt, t, h, lo, nx, ny, nz, min_range, max_range, eps_abs,
                     F[i, j, k] = 1
 
 
+def free_thresholds(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, eps_abs: float, eps_rel: float,
+                    stable_k: float, extent: bool = True) -> np.ndarray:
+    """The frame's per-pixel carving thresholds (H, W) float64 (:func:`_free_threshold`): what :func:`carve`
+    computes once per frame and passes to each part of the frame box it tests (``fthr``)."""
+    Rt = np.ascontiguousarray(T_world_cam[:3, :3].T)
+    return _free_thresholds(np.ascontiguousarray(depth, dtype=np.float32), Rt, float(voxel_size), float(eps_abs),
+                            float(eps_rel), float(stable_k), bool(extent))
+
+
 def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.ndarray, shape, eps_abs: float,
-          eps_rel: float, stable_k: float, min_range: float, max_range: float, extent: bool = True):
+          eps_rel: float, stable_k: float, min_range: float, max_range: float, extent: bool = True, fthr=None):
     """Free-space test of every voxel of a dense frame-local grid (see module docstring).
 
     Parameters
@@ -133,6 +142,8 @@ def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.
     lo : (3,) int64, lattice index of grid cell [0, 0, 0]; shape : (3,) int
 
     extent : bool, require the voxel's whole box in front of the observed local plane
+    fthr : (H, W) float64, the frame's :func:`free_thresholds` when the caller has them (a frame box tested a
+        slab at a time); computed here otherwise
 
     Returns
     -------
@@ -145,8 +156,8 @@ def carve(depth: np.ndarray, T_world_cam: np.ndarray, voxel_size: float, lo: np.
     t = np.ascontiguousarray(T_world_cam[:3, 3])
     depth = np.ascontiguousarray(depth, dtype=np.float32)
     lo = np.asarray(lo, np.int64)
-    fthr = _free_thresholds(depth, Rt, float(voxel_size), float(eps_abs), float(eps_rel), float(stable_k),
-                            bool(extent))
+    if fthr is None:
+        fthr = free_thresholds(depth, T_world_cam, voxel_size, eps_abs, eps_rel, stable_k, extent)
     _carve(depth, fthr, Rt, t, float(voxel_size), lo, shape[0], shape[1], shape[2], float(min_range),
            float(max_range), float(eps_abs), float(eps_rel), F, O)
     return F, O

@@ -88,16 +88,7 @@ def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = No
     parts = list(geometry_parts(frame.depth, frame.T_world_cam, g))
     if config.vocab and (observation is not None or frame.logits is not None):
         if observation is None:
-            from ..semantics.observation import observe
-
-            logits = np.asarray(frame.logits)
-            s = int(config.weights.stride)
-            H, W = frame.camera.shape
-            if logits.shape[:2] == (H, W) and s > 1:
-                logits = logits[::s, ::s]
-            observation = observe(logits)
-            if config.feature_dim:
-                observation = dataclasses.replace(observation, features=_frame_features(frame, config))
+            observation = frame_observation(frame, config)
         elif config.feature_dim and observation.features is None:
             raise PanovoccError(f"frame {frame.index}: its kept semantic observation has no features, the map keeps "
                                 "them (--features)")
@@ -106,6 +97,25 @@ def frame_delta(frame: Frame, config: MapperConfig, rays: np.ndarray | None = No
         parts.append(semantic_delta(frame.depth, frame.rgb, observation, frame.T_world_cam, g.voxel_size,
                                     config.weights, g.min_range, g.max_range, rays))
     return FrameDelta(tuple(parts), observation)
+
+
+def frame_observation(frame: Frame, config: MapperConfig):
+    """The semantic observation :func:`frame_delta` makes of ``frame.logits`` (and, in a map with features, of
+    ``frame.features``): :class:`~panovocc_cli.semantics.observation.SemanticObservation` at the semantic
+    stride; None without a vocabulary or logits. It does not depend on the pose."""
+    if not config.vocab or frame.logits is None:
+        return None
+    from ..semantics.observation import observe
+
+    logits = np.asarray(frame.logits)
+    s = int(config.weights.stride)
+    H, W = frame.camera.shape
+    if logits.shape[:2] == (H, W) and s > 1:
+        logits = logits[::s, ::s]
+    observation = observe(logits)
+    if config.feature_dim:
+        observation = dataclasses.replace(observation, features=_frame_features(frame, config))
+    return observation
 
 
 def _frame_features(frame: Frame, config: MapperConfig) -> np.ndarray:
@@ -239,13 +249,28 @@ class Mapper:
         L[:3, 3] = t
         return dataclasses.replace(frame, T_world_cam=L)
 
+    def observe(self, frame: Frame):
+        """Frame ``frame``'s semantic observation as :meth:`integrate` would make it of its logits
+        (:func:`frame_observation`; None without a vocabulary or logits), checked as it checks them: what a
+        reading thread hands :meth:`integrate` instead of the logits (the run loop's prefetching, so the
+        logits of a frame, C floats a pixel, are freed as soon as it is read). Pure: no state is read but the
+        configuration, so it may run beside the mapper's other methods."""
+        frame.check()
+        self._check_logits(frame)
+        return frame_observation(frame, self.config)
+
+    def _check_logits(self, frame: Frame) -> None:
+        C = len(self.config.vocab)
+        if C and frame.logits is not None and np.shape(frame.logits)[2] != C:
+            raise PanovoccError(f"frame {frame.index}: logits have {np.shape(frame.logits)[2]} classes, the "
+                                f"vocabulary {C}")
+
     def _delta(self, frame: Frame, observation=None) -> FrameDelta:
         frame.check()
         frame = self._local(frame)
         C = len(self.config.vocab)
-        if C and observation is None and frame.logits is not None and np.shape(frame.logits)[2] != C:
-            raise PanovoccError(f"frame {frame.index}: logits have {np.shape(frame.logits)[2]} classes, the "
-                                f"vocabulary {C}")
+        if observation is None:
+            self._check_logits(frame)
         if C and observation is not None and observation.n_classes != C:
             raise PanovoccError(f"frame {frame.index}: its kept semantic observation has {observation.n_classes} "
                                 f"classes, the vocabulary {C}")
@@ -257,8 +282,10 @@ class Mapper:
         return frame_delta(frame, self.config, rays, observation)
 
     @_locked
-    def integrate(self, frame: Frame) -> int:
-        """Add a frame; returns its id (``frame.index`` when set, else the next unused id).
+    def integrate(self, frame: Frame, observation=None) -> int:
+        """Add a frame; returns its id (``frame.index`` when set, else the next unused id). ``observation``:
+        the frame's semantic observation when the caller made it already (:meth:`observe`), used instead of
+        ``frame.logits``.
 
         A frame that touches no voxel (no valid depth pixel, e.g. a dropped sensor frame, or none within
         range) is integrated as an empty observation: it changes nothing and its id is listed in
@@ -269,7 +296,7 @@ class Mapper:
             raise PanovoccError(f"frame id must be >= 0, got {fid}")
         if fid in self._rpu.store:
             raise PanovoccError(f"frame {fid} is already in the map (revise or remove it)")
-        delta = self._delta(frame)
+        delta = self._delta(frame, observation)
         self._rpu.keep(fid, delta, frame.T_world_cam)
         if len(delta) == 0:
             self.empty_frames.append(fid)

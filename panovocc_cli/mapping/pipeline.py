@@ -206,6 +206,21 @@ def prefetched(frames, indices):
             pool.shutdown(wait=True, cancel_futures=True)
 
 
+def observed(frames, mapper: Mapper):
+    """``frames`` (``i -> Frame``) as ``i -> (frame, observation)``: the frame's semantic observation made where
+    it is read (:meth:`.Mapper.observe`), the frame without its logits and features (C floats a pixel; the
+    observation is 4 bytes a pixel), so a prefetched frame and the one being integrated hold no logits. The
+    same delta as :meth:`.Mapper.integrate` of the frame as read (docs/mapping.md, "Memory layout")."""
+    def read(i: int):
+        frame = frames(i)
+        observation = mapper.observe(frame)
+        if observation is not None:
+            frame = dataclasses.replace(frame, logits=None, features=None)
+        return frame, observation
+
+    return read
+
+
 def resident_mb() -> float:
     """This process's resident memory now, MB (Linux ``/proc/self/statm``; NaN elsewhere)."""
     try:
@@ -547,10 +562,10 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     # the ablation schedule and the SLAM revisions read frames again: no prefetching thread beside them
     run_ids = [int(i) for i in todo[start:end]]
     todo_pos = {fid: start + k for k, fid in enumerate(run_ids)}  # frame id -> frames of the run before it
-    stream = (() if shards is not None else prefetched(frames, run_ids) if schedule is None and online is None
-              else ((i, frames(i)) for i in run_ids))
+    stream = (() if shards is not None else prefetched(observed(frames, mapper), run_ids)
+              if schedule is None and online is None else ((i, (frames(i), None)) for i in run_ids))
     try:
-        for i, frame in stream:
+        for i, (frame, observation) in stream:
             revisions = []
             if schedule is not None:  # the ablation schedule: drifted pose now, the true one later
                 frame.T_world_cam = schedule.integration_pose(i)
@@ -564,7 +579,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
                 else:
                     frame.T_world_cam = last_T = np.asarray(T, np.float64)
             tc = time.perf_counter()
-            mapper.integrate(frame)
+            mapper.integrate(frame, observation)
             if schedule is not None:
                 corrected += schedule.apply(mapper, frames, i)
             mapper.revise_many((fid, T, None) for fid, T in revisions)  # a loop closure's frames, pipelined

@@ -299,6 +299,34 @@ def test_checkpoint_of_the_earlier_form_still_loads(mapped, tmp_path):
     _assert_same_memory(back, m)
 
 
+def test_observation_made_where_the_frame_is_read(mapped, seq_dir, tmp_path):
+    """The map loop's reader (pipeline.observed): the frame's observation is made on the reading thread and
+    its logits dropped (a prefetched frame then holds 4 bytes a pixel of semantics, not C floats); integrating
+    the frame with that observation gives the same delta records and memory as integrating it with its
+    logits, and wrong logits are refused in the same words."""
+    from panovocc_cli.mapping.pipeline import observed
+
+    out, cfg, frames = mapped
+    a, b = Mapper(cfg.mapper_config()), Mapper(cfg.mapper_config())
+    read = observed(frames, b)
+    for i in range(N):
+        f, obs = read(i)
+        assert f.logits is None and f.features is None and obs is not None
+        assert obs.classes.nbytes + obs.q.nbytes < frames(i).logits.nbytes / 10
+        a.integrate(frames(i))
+        b.integrate(f, obs)
+        assert a.record(i) == b.record(i)
+    _assert_same_memory(a, b)
+    f = frames(0)
+    bad = dataclasses.replace(f, logits=f.logits[..., :3])
+    for call in (b.observe, Mapper(cfg.mapper_config()).integrate):
+        with pytest.raises(PanovoccError, match="logits have 3 classes, the vocabulary 12"):
+            call(bad)
+    geo = Mapper(MapperConfig(geometry=cfg.mapper_config().geometry))
+    g, obs = observed(frames, geo)(0)
+    assert obs is None and g.logits is not None  # nothing to observe: the frame as read
+
+
 def test_semantic_stride_run_api_and_revise_exact(seq_dir, tmp_path):
     """`map --semantic-stride 2`: the segmenter sees every 2nd pixel, the config records the stride, the
     API fed the same frames gives the same memory, full-size logits give the same delta as logits at the

@@ -6,7 +6,7 @@ import pytest
 from box_room import HI, LO, box_depth, turned_pose
 
 from panovocc_cli.errors import PanovoccError
-from panovocc_cli.mapping.psvf.update import _extract, frame_box
+from panovocc_cli.mapping.psvf.update import _delta_rows, _extract, frame_box
 from panovocc_cli.mapping.freespace import carve
 
 EPS_ABS, EPS_REL, STABLE_K, MIN_R, MAX_R = 0.07, 0.01, 2.0, 0.1, 12.0
@@ -101,7 +101,7 @@ def test_extract_and_frame_box_match_numpy():
     keep = (O != 0) | (a != 0) | (n != 0)
     ijk = np.argwhere(keep) + lo + (1 << 20)
     for observe_hits in (False, True):  # O counts a frame counted in N (True), or only comparisons (older maps)
-        keys, rows = _extract(A, hits, F, O, lo, scale, n_fill, observe_hits)
+        keys, rows = _delta_rows([_extract(A, hits, F, O, lo, scale, n_fill, observe_hits)])
         o = np.maximum(O, n) if observe_hits else O
         np.testing.assert_array_equal(keys, (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2])
         np.testing.assert_array_equal(rows, np.stack([a[keep], n[keep], F[keep], o[keep]], 1))

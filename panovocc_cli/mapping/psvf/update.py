@@ -9,6 +9,9 @@
    it along the normal: a plane on a voxel face counts in both voxels; a noisy measurement within
    ``hit_amb`` s_n of a face counts in neither), or where A >= ``n_fill``;
 6. extraction of the voxels with support, a measurement or a comparison, in lattice order.
+
+Steps 3-6 run a slab of whole x-planes of the frame box at a time (:data:`SLAB_VOXELS`), so the dense grids
+a frame needs are a slab's, not its box's; the delta is the same bit for bit.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import numpy as np
 from ...errors import PanovoccError
 from ...geometry.lattice import pack_index
 from ...runtime import keep_freed_heap  # noqa: F401 (applied by runtime.setup(), not at import)
-from ..freespace import carve
+from ..freespace import carve, free_thresholds
 from ..memory import FIXED_SCALE, Delta
 from ..params import EXTENTS, KERNELS, GeometryParams
 from .rays import lift_kernels
@@ -32,25 +35,31 @@ MAX_FRAME_VOXELS = 64_000_000  # a frame's dense working box may not exceed this
 _pack = nb.njit(inline="always")(pack_index)  # the lattice's key layout, compiled into _extract
 
 @nb.njit(cache=True)
-def _mark_hits(x, h, lo, hits):
-    """Set ``hits`` (uint8 frame grid) to 1 in the voxels that contain a measurement x (metres, world)."""
+def _hit_cells(x, h, lo, nx, ny, nz):
+    """The frame box's cells ((i ny + j) nz + k, int64) that contain a measurement x (metres, world); a cell
+    may repeat (:func:`_mark_cells` sets the flags of a slab of the box from them)."""
+    cells = np.empty(x.shape[0], np.int64)
+    m = 0
     for p in range(x.shape[0]):
-        i, j, k, inside = local_voxel(x, p, h, lo, hits.shape)
+        i, j, k, inside = local_voxel(x, p, h, lo, (nx, ny, nz))
         if inside:
-            hits[i, j, k] = 1
+            cells[m] = (i * ny + j) * nz + k
+            m += 1
+    return cells[:m]
 
 
 @nb.njit(cache=True)
-def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, hits):
-    """Set ``hits`` to 1 in the voxels that contain a measurement x and, for a precise surfel (``surf`` 1,
-    ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position along the
-    normal), in those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
+def _hit_cells_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, nx, ny, nz):
+    """The frame box's cells (as :func:`_hit_cells`) that contain a measurement x and, for a precise surfel
+    (``surf`` 1, ``s = s_axis - n_floor`` <= ``s_max``: s is the standard deviation of the fitted position
+    along the normal), those of the ends of its uncertainty segment ``x +- k s axis`` (metres, world): a
     measurement that close to a voxel face counts as a view of both voxels of the face. An imprecise
     surfel (s > s_max) whose segment ``x +- k_amb s axis`` crosses a voxel face marks no voxel: its own
     noise does not say on which side of the face the surface lies, and counting it in the voxel it fell
     in makes a plane within a few s of a face occupy both voxels (each noisy frame spills into the far
     one). ``k_amb = 0`` counts every imprecise measurement where it fell."""
-    nx, ny, nz = hits.shape
+    cells = np.empty(3 * x.shape[0], np.int64)
+    m = 0
     for p in range(x.shape[0]):
         s = max(sa[p] - n_floor, 0.0) if surf[p] != 0 else 0.0
         if s > s_max:
@@ -71,7 +80,19 @@ def _mark_hits_axis(x, ax, sa, surf, n_floor, k, s_max, k_amb, h, lo, hits):
             j = int(np.floor((x[p, 1] + f * ax[p, 1]) / h)) - lo[1]
             kk = int(np.floor((x[p, 2] + f * ax[p, 2]) / h)) - lo[2]
             if 0 <= i < nx and 0 <= j < ny and 0 <= kk < nz:
-                hits[i, j, kk] = 1
+                cells[m] = (i * ny + j) * nz + kk
+                m += 1
+    return cells[:m]
+
+
+@nb.njit(cache=True)
+def _mark_cells(cells, first, hits):
+    """Set ``hits`` (uint8, the frame box's x-planes ``first``.. of it) to 1 in those of ``cells`` it holds."""
+    flat = hits.reshape(hits.size)
+    c0 = first * hits.shape[1] * hits.shape[2]
+    for c in cells:
+        if c0 <= c < c0 + flat.size:
+            flat[c - c0] = 1
 
 
 @nb.njit(cache=True, inline="always")
@@ -88,9 +109,9 @@ def _voxel_row(a, hit, o, scale, n_fill, observe_hits):
 
 @nb.njit(cache=True, parallel=True)
 def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
-    """Sparse rows (keys in lattice order; columns A, N, F, O) of the voxels with support, a
-    measurement or O != 0. Two passes over slabs of constant i (count, then fill at each slab's prefix
-    offset)."""
+    """The voxels with support, a measurement or O != 0, in lattice order: their keys (int64), A (fixed point,
+    int64) and N, F, O (uint8 (cnt, 3)). Two passes over slabs of constant i (count, then fill at each slab's
+    prefix offset). :func:`_delta_rows` joins the parts of a frame box into the delta's rows."""
     nx, ny, nz = A.shape
     counts = np.zeros(nx + 1, np.int64)
     for i in nb.prange(nx):
@@ -104,7 +125,8 @@ def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
         counts[i + 1] += counts[i]
     cnt = counts[nx]
     keys = np.empty(cnt, np.int64)
-    out = np.empty((cnt, 4), np.int64)
+    a_out = np.empty(cnt, np.int64)
+    nfo = np.empty((cnt, 3), np.uint8)
     for i in nb.prange(nx):
         n = counts[i]
         for j in range(ny):
@@ -112,12 +134,37 @@ def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
                 a, nn, oo, keep = _voxel_row(A[i, j, k], hits[i, j, k], O[i, j, k], scale, n_fill, observe_hits)
                 if keep:
                     keys[n] = _pack(i + lo[0], j + lo[1], k + lo[2])
-                    out[n, 0] = a
-                    out[n, 1] = nn
-                    out[n, 2] = F[i, j, k]
-                    out[n, 3] = oo
+                    a_out[n] = a
+                    nfo[n, 0] = nn
+                    nfo[n, 1] = F[i, j, k]
+                    nfo[n, 2] = oo
                     n += 1
-    return keys, out
+    return keys, a_out, nfo
+
+
+@nb.njit(cache=True, parallel=True)
+def _put_rows(keys, rows, o, k, a, nfo):
+    """Write one :func:`_extract` part (keys ``k``, A ``a``, N F O ``nfo``) into ``keys`` and ``rows`` (n, 4)
+    int64 from row ``o`` on."""
+    for r in nb.prange(k.shape[0]):
+        keys[o + r] = k[r]
+        rows[o + r, 0] = a[r]
+        rows[o + r, 1] = nfo[r, 0]
+        rows[o + r, 2] = nfo[r, 1]
+        rows[o + r, 3] = nfo[r, 2]
+
+
+def _delta_rows(parts) -> tuple:
+    """The frame's keys (n,) int64 and rows (n, 4) int64 (A N F O) from its box's :func:`_extract` parts, in
+    order (each written once into the arrays the delta keeps: no second copy of every row)."""
+    n = sum(len(k) for k, _, _ in parts)
+    keys = np.empty(n, np.int64)
+    rows = np.empty((n, 4), np.int64)
+    o = 0
+    for k, a, nfo in parts:
+        _put_rows(keys, rows, o, k, a, nfo)
+        o += len(k)
+    return keys, rows
 
 
 @nb.njit(cache=True)
@@ -195,8 +242,8 @@ def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
         x, Pt, half, w, ax, sa, bb, surf = surfels_for(depth, T_world_cam, p, c_norm)
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
-        A = splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo, shape)
-        d = _finish(A, x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
+        d = _finish(lambda lo_s, shape_s: splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo_s, shape_s),
+                    x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
         return (d, offset_delta(x, ax, T_world_cam[:3, 3], p.voxel_size)) if offsets else (d,)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
@@ -214,8 +261,8 @@ def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
         box_half = half + 0.5 * p.voxel_size * np.abs(er) / p.kappa  # the splat's reach includes the chord
     lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
     _check_box(shape)
-    A = splat(x, P, half, w, p.kappa, p.voxel_size, lo, shape, kern, er, sr)
-    d = _finish(A, x, depth, T_world_cam, p, lo, shape)
+    d = _finish(lambda lo_s, shape_s: splat(x, P, half, w, p.kappa, p.voxel_size, lo_s, shape_s, kern, er, sr),
+                x, depth, T_world_cam, p, lo, shape)
     if not offsets:
         return (d,)
     v = T_world_cam[:3, 3] - x  # these kernels have no normal: the ray, towards the camera
@@ -286,23 +333,44 @@ def _check_box(shape) -> None:
                             "lower --max-range or raise --voxel-size")
 
 
-def _finish(A, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
-    """Free-space test and extraction of the frame's sparse delta from its dense support grid A and
+SLAB_VOXELS = 1 << 18
+"""A frame box is splatted, carved and extracted a slab of whole x-planes at a time, about this many voxels
+(at least one plane): the frame's dense working set (two float64 support grids, F, O and the hit flags:
+19 bytes a voxel) stays bounded by the slab, not the box (docs/mapping.md, "Memory layout"). The delta is
+the same bit for bit whatever the slab (each voxel's support sums the same kernels in the same order)."""
+
+
+def _finish(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
+    """Support, free-space test and extraction of the frame's sparse delta, a slab of the frame box (``lo``,
+    ``shape``) at a time: ``splat_box(lo_s, shape_s)`` gives the dense support grid A of a part of the box;
     its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
     kernel's ``surfels`` = (axes (n, 3), scales (n,) metres, surfel flags (n,) uint8), so do the voxels
     that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max; a surfel with
     s - n_floor > hit_max whose segment ``x +- hit_amb (s - n_floor) n`` crosses a face marks none)."""
-    F, O = carve(depth, T_world_cam, p.voxel_size, lo, shape, p.eps_abs, p.eps_rel, p.stable_k,
-                 p.min_range, p.max_range, p.carve_extent)
-    hits = np.zeros(A.shape, np.uint8)
+    lo = np.asarray(lo, np.int64)
+    nx, ny, nz = (int(s) for s in shape)
+    fthr = free_thresholds(depth, T_world_cam, p.voxel_size, p.eps_abs, p.eps_rel, p.stable_k, p.carve_extent)
+    n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
+    x = np.ascontiguousarray(x, np.float64)
     if surfels is not None and (p.hit_k > 0 or p.hit_amb > 0):
         ax, sa, surf = surfels
-        _mark_hits_axis(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(ax, np.float64),
-                        np.ascontiguousarray(sa, np.float64), np.ascontiguousarray(surf), float(p.n_floor),
-                        float(p.hit_k), float(p.hit_max), float(p.hit_amb), float(p.voxel_size),
-                        np.asarray(lo, np.int64), hits)
+        cells = _hit_cells_axis(x, np.ascontiguousarray(ax, np.float64), np.ascontiguousarray(sa, np.float64),
+                                np.ascontiguousarray(surf), float(p.n_floor), float(p.hit_k), float(p.hit_max),
+                                float(p.hit_amb), float(p.voxel_size), lo, nx, ny, nz)
     else:
-        _mark_hits(np.ascontiguousarray(x, np.float64), float(p.voxel_size), np.asarray(lo, np.int64), hits)
-    n_fill = np.int64(np.ceil(p.n_fill * FIXED_SCALE)) if p.kernel == "psvf" else np.int64(1) << 62
-    keys, rows = _extract(A, hits, F, O, lo, float(FIXED_SCALE), n_fill, bool(p.observe_hits))
+        cells = _hit_cells(x, float(p.voxel_size), lo, nx, ny, nz)
+    step = max(1, SLAB_VOXELS // max(ny * nz, 1))
+    parts = []
+    for i0 in range(0, nx, step):
+        lo_s = lo + np.array([i0, 0, 0], np.int64)
+        shape_s = (min(step, nx - i0), ny, nz)
+        A = splat_box(lo_s, shape_s)
+        F, O = carve(depth, T_world_cam, p.voxel_size, lo_s, shape_s, p.eps_abs, p.eps_rel, p.stable_k,
+                     p.min_range, p.max_range, p.carve_extent, fthr=fthr)
+        hits = np.zeros(shape_s, np.uint8)
+        _mark_cells(cells, i0, hits)
+        parts.append(_extract(A, hits, F, O, lo_s, float(FIXED_SCALE), n_fill, bool(p.observe_hits)))
+        del A, F, O, hits
+    keys, rows = _delta_rows(parts)
+    del parts
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})
