@@ -23,7 +23,8 @@ import numpy as np
 from ..errors import PanovoccError
 from .atomic import write_text
 from .npz import StreamedArray, write_npz
-from .record_kernels import factor_rows, from_planes, key_gaps, keys_from_gaps, nonzero_rows, scatter_rows
+from .record_kernels import (factor_rows, from_planes, key_gaps, keys_from_gaps, nonzero_rows, scatter_rows,
+                             to_planes)
 from .sequence import frame_stem
 
 CONFIG_NAME = "config.json"
@@ -92,8 +93,11 @@ def _shuffled(arrays: dict, key: str, a: np.ndarray) -> None:
     if a.dtype.itemsize == 1:
         arrays[key] = a
         return
-    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
-    arrays[key] = np.ascontiguousarray(a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T)
+    if a.dtype.kind == "i" and a.dtype.isnative and a.dtype.itemsize in (2, 4, 8):  # one compiled pass, the same bytes
+        arrays[key] = to_planes(np.ascontiguousarray(a), a.dtype.itemsize)
+    else:
+        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+        arrays[key] = np.ascontiguousarray(a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T)
     pre, name = key.split("ch_", 1)
     arrays[f"{pre}shape_{name}"] = np.array(a.shape, np.int64)
 
@@ -130,11 +134,14 @@ class StoredRows:
             raise TypeError("StoredRows reads slices of rows")
         a, b, _ = key.indices(self.shape[0])
         b, w = max(a, b), self.shape[1]
-        if self._planes:
-            x = np.ascontiguousarray(self._raw[:, a * w:b * w].T).view(f"<i{self._raw.shape[0]}")
+        if self._planes and self._raw.dtype == np.uint8 and self._raw.shape[0] in (2, 4, 8):
+            x = from_planes(self._raw[:, a * w:b * w]).reshape(b - a, w)  # one compiled pass, a new int64 array
         else:
-            x = self._raw.reshape(-1)[a * w:b * w]
-        x = x.reshape(b - a, w).astype(np.int64)
+            if self._planes:
+                x = np.ascontiguousarray(self._raw[:, a * w:b * w].T).view(f"<i{self._raw.shape[0]}")
+            else:
+                x = self._raw.reshape(-1)[a * w:b * w]
+            x = x.reshape(b - a, w).astype(np.int64)
         if self._g > 1:
             x *= self._g
         return x

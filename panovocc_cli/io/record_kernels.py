@@ -141,3 +141,17 @@ def from_planes(planes):
             v |= np.uint64(planes[b, i]) << np.uint64(8 * b)
         out[i] = (np.int64(v << np.uint64(shift))) >> shift  # sign-extended from k bytes
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def to_planes(a, k):
+    """Inverse of :func:`from_planes`: the values of ``a`` (any shape, integers of k bytes, C order) as byte
+    planes (k, a.size) uint8 (:func:`.mapstore._shuffled`)."""
+    flat = a.reshape(-1)
+    m = flat.shape[0]
+    out = np.empty((k, m), np.uint8)
+    for i in range(m):
+        v = np.int64(flat[i])
+        for b in range(k):
+            out[b, i] = np.uint8((v >> (8 * b)) & 0xFF)
+    return out
