@@ -335,6 +335,19 @@ def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
     assert any({"E", "count"} <= set(names) for names in together)
 
 
+def _swapped(specs, kept, o, n, swap=None):
+    """(memory of kept + o, then o subtracted and n added; the same memory swapped by ``replace`` (or
+    ``swap(memory)``))."""
+    want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
+    for m in (want, got):
+        m.add(kept)
+        m.add(o)
+    want.add(o, -1)
+    want.add(n, +1)
+    (swap or (lambda m: m.replace(o, n)))(got)
+    return want, got
+
+
 def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
     """``replace(old, new)`` (a revision's swap of a frame's delta) gives the memory ``add(old, -1)`` then
     ``add(new, +1)`` gives, bit for bit and with the same allocated blocks and rows, adding each part once
@@ -365,17 +378,16 @@ def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
     near_geo["A"][-1] = 7
     cases.append((old, FrameDelta((Delta(keys, near_geo), Delta(sem.keys, {c: v.copy() for c, v in sem.channels.items()})))))
     for case, (o, n) in enumerate(cases):
-        want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
-        for m in (want, got):
-            m.add(kept)
-            m.add(o)
-        want.add(o, -1)
-        want.add(n, +1)
         passes = []
         real = VoxelMemory._add_group
-        monkeypatch.setattr(VoxelMemory, "_add_group", lambda self, g, k, *a: (passes.append((g, len(k))), real(self, g, k, *a))[1])
-        got.replace(o, n)
-        monkeypatch.setattr(VoxelMemory, "_add_group", real)
+
+        def counted(m, o=o, n=n):
+            monkeypatch.setattr(VoxelMemory, "_add_group",
+                                lambda self, g, k, *a: (passes.append((g, len(k))), real(self, g, k, *a))[1])
+            m.replace(o, n)
+            monkeypatch.setattr(VoxelMemory, "_add_group", real)
+
+        want, got = _swapped(specs, kept, o, n, counted)
         if case == 0:
             assert [g for g, _ in passes] == ["dense", "sparse"], passes  # one pass a group
         if case == len(cases) - 1:  # the unchanged voxels were left out; the new zero row was not
@@ -441,13 +453,7 @@ def test_replace_reads_channels_as_views_of_any_layout():
     cases = [(old, views(new)), (views(old, ("O", "F", "N", "A")), new), (views(old), views(new)),
              (old, Delta(new.keys, mixed)), (leaving, big), (Delta(old.keys, {**old.channels, **small}), views(new))]
     for o, n in cases:
-        want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
-        for m in (want, got):
-            m.add(kept)
-            m.add(o)
-        want.add(o, -1)
-        want.add(n, +1)
-        got.replace(o, n)
+        want, got = _swapped(specs, kept, o, n)
         a, b = want.to_arrays(), got.to_arrays()
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
