@@ -23,6 +23,8 @@ import numpy as np
 from ..errors import PanovoccError
 from .atomic import write_text
 from .npz import StreamedArray, write_npz
+from .record_kernels import (factor_rows, from_planes, key_gaps, keys_from_gaps, nonzero_rows, scatter_rows,
+                             to_planes)
 from .sequence import frame_stem
 
 CONFIG_NAME = "config.json"
@@ -91,8 +93,11 @@ def _shuffled(arrays: dict, key: str, a: np.ndarray) -> None:
     if a.dtype.itemsize == 1:
         arrays[key] = a
         return
-    a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
-    arrays[key] = np.ascontiguousarray(a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T)
+    if a.dtype.kind == "i" and a.dtype.isnative and a.dtype.itemsize in (2, 4, 8):  # one compiled pass, the same bytes
+        arrays[key] = to_planes(np.ascontiguousarray(a), a.dtype.itemsize)
+    else:
+        a = np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<"))
+        arrays[key] = np.ascontiguousarray(a.reshape(-1).view(np.uint8).reshape(-1, a.dtype.itemsize).T)
     pre, name = key.split("ch_", 1)
     arrays[f"{pre}shape_{name}"] = np.array(a.shape, np.int64)
 
@@ -103,6 +108,8 @@ def _unshuffled(z, files, key: str) -> np.ndarray:
     pre, name = key.split("ch_", 1)
     if f"{pre}shape_{name}" in files:
         shape = tuple(int(x) for x in np.asarray(z[f"{pre}shape_{name}"]))
+        if a.ndim == 2 and a.dtype == np.uint8 and a.shape[0] in (2, 4, 8):  # one compiled pass, the same values
+            return from_planes(np.ascontiguousarray(a)).reshape(shape)
         a = np.ascontiguousarray(a.T).view(f"<i{a.shape[0]}").reshape(shape)
     return a.astype(np.int64)
 
@@ -127,11 +134,14 @@ class StoredRows:
             raise TypeError("StoredRows reads slices of rows")
         a, b, _ = key.indices(self.shape[0])
         b, w = max(a, b), self.shape[1]
-        if self._planes:
-            x = np.ascontiguousarray(self._raw[:, a * w:b * w].T).view(f"<i{self._raw.shape[0]}")
+        if self._planes and self._raw.dtype == np.uint8 and self._raw.shape[0] in (2, 4, 8):
+            x = from_planes(self._raw[:, a * w:b * w]).reshape(b - a, w)  # one compiled pass, a new int64 array
         else:
-            x = self._raw.reshape(-1)[a * w:b * w]
-        x = x.reshape(b - a, w).astype(np.int64)
+            if self._planes:
+                x = np.ascontiguousarray(self._raw[:, a * w:b * w].T).view(f"<i{self._raw.shape[0]}")
+            else:
+                x = self._raw.reshape(-1)[a * w:b * w]
+            x = x.reshape(b - a, w).astype(np.int64)
         if self._g > 1:
             x *= self._g
         return x
@@ -168,10 +178,9 @@ def _factored(channels: Mapping[str, np.ndarray], factors: Mapping[str, tuple] |
         f = np.asarray(channels[fname], np.int64).reshape(n, -1)
         if f.shape[1] != 1:
             continue
-        num = x * np.int64(den)
-        safe = np.where(f != 0, f, 1)
-        m = np.where(f != 0, num // safe, 0)
-        if np.array_equal(m * f, num):
+        # m = x den // f where f != 0, else 0; it holds when m f == x den (int64 wrapping as numpy's)
+        ok, m = factor_rows(np.ascontiguousarray(x), np.ascontiguousarray(f[:, 0]), np.int64(den))
+        if ok:
             out[name], used[name] = m, (fname, int(den))
     return out, used
 
@@ -205,7 +214,12 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
             arr = SparseRows(rows, vals, n).dense()
         arr = np.asarray(arr)
         arr = arr.reshape(n, arr.shape[-1] if arr.ndim == 2 else -1) if n == 0 else arr.reshape(n, -1)
-        rows = np.flatnonzero(_row_any(arr)) if n else np.zeros(0, np.int64)
+        if not n:
+            rows = np.zeros(0, np.int64)
+        elif arr.dtype == np.int64:  # one compiled pass: np.flatnonzero(_row_any(arr))
+            rows = nonzero_rows(arr)
+        else:
+            rows = np.flatnonzero(_row_any(arr))
         if 2 * len(rows) < n:
             _put_values(arrays, prefix, name, _compact(arr[rows]))
             arrays[f"{prefix}rows_{name}"] = _compact(np.diff(rows, prepend=np.int64(0)))
@@ -281,7 +295,14 @@ def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
             full[mask] = vals.reshape(-1)
             vals = full
         if f"{prefix}rows_{name}" in files:  # sparse rows
-            rows = np.cumsum(np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64))
+            gaps = np.asarray(z[f"{prefix}rows_{name}"]).astype(np.int64)
+            if not sparse:  # one compiled pass: zeros, then the rows at the running sum of their gaps
+                w = vals.shape[1] if vals.ndim == 2 else 1
+                ok, ch[name] = scatter_rows(n, gaps.reshape(-1), np.ascontiguousarray(vals.reshape(len(gaps), w)))
+                if not ok:
+                    raise IndexError(f"channel {name}: a row outside 0..{n - 1}")
+                continue
+            rows = np.cumsum(gaps)
             if sparse:
                 ch[name] = SparseRows(rows, vals.reshape(len(rows), vals.shape[1] if vals.ndim == 2 else 1), n)
                 continue
@@ -653,10 +674,9 @@ def delta_arrays(parts, T_world_cam: np.ndarray, observation: Mapping[str, np.nd
         keys, channels = part[0], part[1]
         pre = _part_prefix(i)
         keys = np.asarray(keys, np.int64)
-        gaps = np.diff(keys)  # the first key apart; gaps in int16, the few larger ones (a new row) apart
-        jump = np.abs(gaps) > _GAP_MAX
-        arrays[f"{pre}keys_diff"] = np.where(jump, _GAP_JUMP, gaps).astype(np.int16)
-        arrays[f"{pre}keys_jumps"] = gaps[jump]
+        # the first key apart; gaps in int16, the few larger ones (a new row) apart
+        arrays[f"{pre}keys_diff"], arrays[f"{pre}keys_jumps"] = key_gaps(np.ascontiguousarray(keys.reshape(-1)),
+                                                                          _GAP_MAX, _GAP_JUMP)
         arrays[f"{pre}keys_first"] = keys[:1]
         _encode_channels(arrays, pre, len(keys), channels, part[2] if len(part) > 2 else None)
     for name, a in (observation or {}).items():
@@ -678,6 +698,14 @@ def arrays_record(z: Mapping[str, np.ndarray]) -> DeltaRecord:
     parts = []
     while f"{_part_prefix(len(parts))}keys_diff" in z:
         pre = _part_prefix(len(parts))
+        if f"{pre}keys_jumps" in z and f"{pre}keys_first" in z:  # one compiled pass (a record since shards)
+            ok, keys = keys_from_gaps(np.asarray(z[f"{pre}keys_first"], np.int64).reshape(-1),
+                                      np.asarray(z[f"{pre}keys_diff"]).reshape(-1),
+                                      np.asarray(z[f"{pre}keys_jumps"], np.int64).reshape(-1), _GAP_JUMP)
+            if not ok:
+                raise ValueError("key gaps and jumps disagree")
+            parts.append((keys, _decode_channels(z, pre, len(keys))))
+            continue
         gaps = np.asarray(z[f"{pre}keys_diff"]).astype(np.int64)
         if f"{pre}keys_jumps" in z:
             jump = gaps == _GAP_JUMP

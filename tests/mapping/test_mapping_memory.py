@@ -335,6 +335,19 @@ def test_a_memory_file_loads_in_chunks_of_rows_to_the_same_memory(monkeypatch):
     assert any({"E", "count"} <= set(names) for names in together)
 
 
+def _swapped(specs, kept, o, n, swap=None):
+    """(memory of kept + o, then o subtracted and n added; the same memory swapped by ``replace`` (or
+    ``swap(memory)``))."""
+    want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
+    for m in (want, got):
+        m.add(kept)
+        m.add(o)
+    want.add(o, -1)
+    want.add(n, +1)
+    (swap or (lambda m: m.replace(o, n)))(got)
+    return want, got
+
+
 def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
     """``replace(old, new)`` (a revision's swap of a frame's delta) gives the memory ``add(old, -1)`` then
     ``add(new, +1)`` gives, bit for bit and with the same allocated blocks and rows, adding each part once
@@ -365,17 +378,16 @@ def test_replace_equals_subtract_then_add_in_one_pass(monkeypatch):
     near_geo["A"][-1] = 7
     cases.append((old, FrameDelta((Delta(keys, near_geo), Delta(sem.keys, {c: v.copy() for c, v in sem.channels.items()})))))
     for case, (o, n) in enumerate(cases):
-        want, got = VoxelMemory(0.08, specs), VoxelMemory(0.08, specs)
-        for m in (want, got):
-            m.add(kept)
-            m.add(o)
-        want.add(o, -1)
-        want.add(n, +1)
         passes = []
         real = VoxelMemory._add_group
-        monkeypatch.setattr(VoxelMemory, "_add_group", lambda self, g, k, *a: (passes.append((g, len(k))), real(self, g, k, *a))[1])
-        got.replace(o, n)
-        monkeypatch.setattr(VoxelMemory, "_add_group", real)
+
+        def counted(m, o=o, n=n):
+            monkeypatch.setattr(VoxelMemory, "_add_group",
+                                lambda self, g, k, *a: (passes.append((g, len(k))), real(self, g, k, *a))[1])
+            m.replace(o, n)
+            monkeypatch.setattr(VoxelMemory, "_add_group", real)
+
+        want, got = _swapped(specs, kept, o, n, counted)
         if case == 0:
             assert [g for g, _ in passes] == ["dense", "sparse"], passes  # one pass a group
         if case == len(cases) - 1:  # the unchanged voxels were left out; the new zero row was not
@@ -415,3 +427,41 @@ def test_reading_a_kept_delta_waits_only_for_its_own_pending_write(tmp_path, mon
     assert time.perf_counter() - t0 >= 1.4
     np.testing.assert_array_equal(got.parts[0].channels["F"], d2.channels["F"])
     store.close()
+
+
+def test_replace_reads_channels_as_views_of_any_layout():
+    """The swap reads each side's channels without concatenating them when they are column views of one matrix
+    (``memory._column_matrix``: the geometry kernel's (n, 4) A N F O, in another order than the channels'
+    sorted names), and concatenates them otherwise (contiguous arrays, a mix, narrower integer types): every
+    case gives the memory that subtract-then-add gives, including a key that leaves the memory, keys that
+    enter it and sums past int32."""
+    rng = np.random.default_rng(21)
+    specs = _semantic_specs(3)
+    kept = _random_delta(rng, n=3000, span=25)
+    old = _random_delta(rng, n=3000, span=25)
+    new = _random_delta(rng, n=3000, span=25)
+
+    def views(d, order=("A", "N", "F", "O")):  # one (n, 4) matrix, channels its column views
+        base = np.ascontiguousarray(np.concatenate([d.channels[c] for c in order], axis=1))
+        return Delta(d.keys, {c: base[:, i:i + 1] for i, c in enumerate(order)})
+
+    leaving = Delta(old.keys[:1], {c: np.full((1, 1), 5) for c in ("A", "N", "F", "O")})  # only in old: leaves
+    big = Delta(new.keys[:2], {c: np.full((2, 1), 2 ** 40) for c in ("A", "N", "F", "O")})  # int64 sums
+    mixed = {**views(new).channels, "F": np.ascontiguousarray(new.channels["F"])}
+    small = {c: v.astype(np.int32) for c, v in old.channels.items() if np.abs(v).max() < 2 ** 31}
+    assert small
+    cases = [(old, views(new)), (views(old, ("O", "F", "N", "A")), new), (views(old), views(new)),
+             (old, Delta(new.keys, mixed)), (leaving, big), (Delta(old.keys, {**old.channels, **small}), views(new))]
+    for o, n in cases:
+        want, got = _swapped(specs, kept, o, n)
+        a, b = want.to_arrays(), got.to_arrays()
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+        assert (want.n_blocks, want.n_rows) == (got.n_blocks, got.n_rows)
+    names = sorted("ANFO")
+    v = views(new)
+    matrix, src = memory._column_matrix([v.channels[c] for c in names], len(v))
+    assert matrix is v.channels["A"].base and src.tolist() == [0, 2, 1, 3]  # no copy: A F N O read from A N F O
+    matrix, src = memory._column_matrix([mixed[c] for c in names], len(v))
+    assert matrix.flags.c_contiguous and src.tolist() == [0, 1, 2, 3]  # a mix: concatenated
+    np.testing.assert_array_equal(matrix, np.concatenate([new.channels[c] for c in names], axis=1))
