@@ -303,12 +303,7 @@ def _decode_channels(z, prefix: str, n: int, sparse: bool = False) -> dict:
                     raise IndexError(f"channel {name}: a row outside 0..{n - 1}")
                 continue
             rows = np.cumsum(gaps)
-            if sparse:
-                ch[name] = SparseRows(rows, vals.reshape(len(rows), vals.shape[1] if vals.ndim == 2 else 1), n)
-                continue
-            full = np.zeros((n, vals.shape[1] if vals.ndim == 2 else 1), np.int64)
-            full[rows] = vals.reshape(len(rows), full.shape[1])
-            ch[name] = full
+            ch[name] = SparseRows(rows, vals.reshape(len(rows), vals.shape[1] if vals.ndim == 2 else 1), n)
         else:
             ch[name] = vals if vals.ndim == 2 else vals.reshape(n, -1)
     for name in [k[len(prefix) + 4:] for k in sorted(files) if k.startswith(f"{prefix}fac_")]:
