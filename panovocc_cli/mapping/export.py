@@ -447,7 +447,7 @@ def gsc_inputs(channels, g: np.ndarray, rows: np.ndarray) -> tuple:
 
 def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params, *, block: int | None = None,
                    previous: np.ndarray | None = None, changed_keys: np.ndarray | None = None,
-                   progress=None, workers: int = 1) -> np.ndarray:
+                   progress=None) -> np.ndarray:
     """Vocabulary index of each occupied voxel, or -1 (no class; exported as 254).
 
     Labelled a cube of ``block`` voxels a side at a time (:func:`~panovocc_cli.semantics.gsc.
@@ -468,7 +468,6 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
         (:func:`incremental_labels`); the result equals a full labelling bit for bit
     changed_keys : (k,) int64 voxel keys, with ``previous``
     progress : callable ``(voxels done)``, optional
-    workers : int, cubes labelled at once on that many threads (the same labels)
 
     Returns
     -------
@@ -490,7 +489,7 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
         redo = _touches(np.asarray(changed_keys, np.int64), block, block_halo(params.use_gsc, params.gsc))
     return consolidate_blocks(np.asarray(occupied_keys, np.int64), lambda rows: gsc_inputs(channels, g, rows),
                               use_gsc=params.use_gsc, params=params.gsc, block=block, labels=labels, redo=redo,
-                              progress=progress, workers=workers)
+                              progress=progress)
 
 
 def _touches(changed_keys: np.ndarray, block: int, halo: int):
@@ -535,7 +534,7 @@ def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
                   vocab=(), semantic=None, origin_index=(0, 0, 0), *, previous: Grid | None = None,
                   changed_keys: np.ndarray | None = None, pieces=None, reader=None, lookup=None,
-                  block: int | None = None, workers: int = 1) -> MapExport:
+                  block: int | None = None) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
@@ -563,8 +562,6 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
         thinning's neighbours (:func:`thin_spill`; needed with ``occupancy.spill > 0``)
     block : the GSC cube side in voxels (:func:`label_occupied`; default :data:`~..semantics.gsc.BLOCK`): the
         same labels whatever it is; a larger cube consolidates fewer halo voxels twice but holds more at once
-    workers : GSC cubes labelled at once on that many threads (:func:`label_occupied`: the same labels, the
-        working sets of ``workers`` cubes at once)
     """
     if pieces is None:
         pieces = (lambda: [(keys, channels, None)])
@@ -587,8 +584,7 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
                 changed = np.concatenate([changed] + [k[ok] for k, ok in (_neighbour_keys(changed, a, d)
                                                                           for a, d in FACES)])
             changed = np.concatenate([changed, occ_keys[before == UNKNOWN_CLASS]])
-        labels = label_occupied(occ_keys, sub, g, semantic, block=block, previous=before, changed_keys=changed,
-                                workers=workers)
+        labels = label_occupied(occ_keys, sub, g, semantic, block=block, previous=before, changed_keys=changed)
         grid = apply_labels(grid, occ_keys, labels, vocab, in_place=True)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world
         grid = Grid(grid.labels, index_to_center(grid.index0 + oi, voxel_size), voxel_size, grid.class_names)

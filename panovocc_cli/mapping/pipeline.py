@@ -680,10 +680,6 @@ a quarter less CPU on the building (fewer halo voxels consolidated twice) for a 
 ``map``'s peak (at most 1.5x the memory held) has no room for; ``revise``'s peak is the loaded memory's
 plus the save's and the export's (docs/mapping.md "Building revise, fourth pass")."""
 
-REVISE_GSC_WORKERS = 2
-"""GSC cubes ``revise``'s export labels at once, on that many threads (the same labels): the second core,
-which the ``memory.npz`` writer leaves idle once it is done (docs/mapping.md "Building revise, sixth pass")."""
-
 
 def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     cfg = load_config(out)
@@ -720,7 +716,7 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
             # re-raises a failed write. The grid and PLY are written after the commit, as before.
             mapper.save(out, background=FROZEN)
             try:
-                ex = mapper.export(block=REVISE_GSC_BLOCK, workers=REVISE_GSC_WORKERS)
+                ex = mapper.export(block=REVISE_GSC_BLOCK)
             finally:
                 mapper.close()
         except BaseException:

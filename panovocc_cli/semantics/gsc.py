@@ -444,7 +444,7 @@ def _unique_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params: GSCParams = GSCParams(),
                        block: int = BLOCK, labels: np.ndarray | None = None, redo=None,
-                       progress=None, workers: int = 1) -> np.ndarray:
+                       progress=None) -> np.ndarray:
     """:func:`consolidate` of a whole map a cube of the key space at a time, bit for bit the same labels.
 
     Each cube of ``block`` voxels a side is consolidated with the voxels within :func:`block_halo` of it
@@ -464,11 +464,7 @@ def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params
         consolidation, kept for every cube not redone
     redo : callable ``(cube lattice index (3,), keys of the cube and its halo) -> bool``, optional: which
         cubes to consolidate again (an incremental export: those whose halo holds a changed voxel)
-    progress : callable ``(voxels done)``, optional, called after each cube (in cube order)
-    workers : int, cubes consolidated at once on that many threads (``revise``'s export: its diffusion
-        steps and most of its array operations release the GIL). Each cube writes only its own voxels'
-        labels, so the labels are the same whatever ``workers``; at most ``workers`` cubes' working sets
-        are held at once.
+    progress : callable ``(voxels done)``, optional, called after each cube
 
     Returns
     -------
@@ -482,32 +478,12 @@ def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params
     elif labels.shape != (n,):
         raise PanovoccError(f"labels {labels.shape} must be ({n},)")
     halo = block_halo(use_gsc, params)
-
-    def label(cube, rows, inner) -> int:
+    for cube, rows, inner in key_blocks(keys, block, halo):
         if redo is None or redo(cube, keys[rows]):
             p, S, g, normals, colors = inputs(rows)
             lab = consolidate(unpack_keys(keys[rows]), p, S, g, normals, colors, use_gsc=use_gsc, params=params)
             labels[rows[inner]] = lab[inner]
-        return int(inner.sum())
-
-    done = progress if progress is not None else (lambda _: None)
-    if workers <= 1:
-        for cube, rows, inner in key_blocks(keys, block, halo):
-            done(label(cube, rows, inner))
-        return labels
-    from collections import deque
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(max_workers=int(workers), thread_name_prefix="gsc") as pool:
-        pending = deque()  # at most ``workers`` cubes in flight, finished in cube order
-        try:
-            for item in key_blocks(keys, block, halo):
-                if len(pending) >= workers:
-                    done(pending.popleft().result())
-                pending.append(pool.submit(label, *item))
-            while pending:
-                done(pending.popleft().result())
-        finally:
-            for f in pending:  # a failed cube: the others are not started, those running are waited for
-                f.cancel()
+            del p, S, g, normals, colors, lab
+        if progress is not None:
+            progress(int(inner.sum()))
     return labels

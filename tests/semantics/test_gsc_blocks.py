@@ -146,24 +146,3 @@ def test_unique_pairs_equal_numpy_rows():
         got = _unique_pairs(a, b)
         assert got.dtype == np.int64 and np.array_equal(got, np.unique(np.stack([a, b], 1), axis=0))
     assert _unique_pairs(np.zeros(0, np.int64), np.zeros(0, np.int64)).shape == (0, 2)
-
-
-def test_cubes_on_threads_give_the_same_labels_and_report_every_voxel():
-    """``workers`` cubes at once (revise's export): the same labels as one at a time and as the whole map,
-    every voxel reported to ``progress`` once; a cube whose inputs fail raises, whichever thread read them."""
-    keys, arrays = _planes((0, 0, 0))
-    whole = consolidate(unpack_keys(keys), *arrays)
-    for workers in (2, 3):
-        seen = []
-        got = consolidate_blocks(keys, _inputs(arrays), block=8, workers=workers, progress=seen.append)
-        assert np.array_equal(got, whole) and sum(seen) == len(keys) and len(seen) > workers
-    calls = []
-
-    def failing(rows):
-        calls.append(len(rows))
-        if len(calls) == 3:
-            raise RuntimeError("channels unreadable")
-        return _inputs(arrays)(rows)
-
-    with pytest.raises(RuntimeError, match="unreadable"):
-        consolidate_blocks(keys, failing, block=8, workers=2)
