@@ -98,6 +98,15 @@ def _frame_delta(parts, observation=None) -> FrameDelta:
     return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts), obs)
 
 
+def _held_delta(held, where) -> FrameDelta:
+    """The delta of a pending append whose write failed: as it was put, or decoded from its record once the
+    writer has encoded it (the same channels bit for bit: what a revision reads back from the log)."""
+    if isinstance(held, FrameDelta):
+        return held
+    rec = mapstore.decode_record(held, where)
+    return _frame_delta(rec.parts)
+
+
 def _record_parts(delta: FrameDelta) -> list:
     """What a PUT record stores of a frame delta's parts: (keys, channels, factors) each."""
     return [(p.keys, p.channels, p.factors) for p in delta.parts]
@@ -138,7 +147,8 @@ class DeltaStore:
         self._locs: dict[int, tuple] = dict(_locs or {})
         self._log = _log
         self._writer = None
-        self._inflight = None  # (frame id, new delta, old delta, old pose, old location) of the pending append
+        # the pending append: (frame id, [its delta, or its record once encoded], old delta, old pose, old location)
+        self._inflight = None
         if self.folder is not None and self._log is None:
             if has_store(self.folder):
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", self.folder)
@@ -210,13 +220,21 @@ class DeltaStore:
             self._ram[fid] = (_compact_parts(delta), delta.observation)
             return
         self.flush()
-        inflight = (fid, delta, old, self.poses.get(fid), self._locs.get(fid))
+        held = [delta]  # the writer swaps it for its record once encoded (the delta is then freed)
+        inflight = (fid, held, old, self.poses.get(fid), self._locs.get(fid))
         self.poses[fid] = T
         self._inflight = inflight
-        self._submit(self._append_put, fid, _record_parts(delta), T, _observation_arrays(delta))
+        del delta
+        self._submit(self._append_put, fid, held, T)
 
-    def _append_put(self, fid: int, parts, T, observation=None) -> None:
-        self._locs[fid] = self._log.append(mapstore.PUT, fid, mapstore.encode_delta(parts, T, observation))
+    def _append_put(self, fid: int, held: list, T) -> None:
+        """Encode ``held[0]`` (the frame's delta) and append it. The delta is dropped as soon as its record
+        is made (``held[0]`` then holds the record): it is not alive beside the next frame's working set
+        for the rest of that frame (up to 40 bytes a row, docs/mapping.md "The per-frame working set"); a
+        failed append's undo decodes the record instead (:meth:`flush`)."""
+        payload = encode_record(held[0], T)
+        held[0] = payload
+        self._locs[fid] = self._log.append(mapstore.PUT, fid, payload)
 
     def put_encoded(self, frame_id: int, payload: bytes, T_world_cam: np.ndarray) -> None:
         """Keep a new frame's delta given as its record payload (:func:`encode_record`, made elsewhere: a shard
@@ -267,7 +285,8 @@ class DeltaStore:
         except OSError as e:
             if inflight is None:
                 raise
-            fid, delta, old, old_T, old_loc = inflight
+            fid, held, old, old_T, old_loc = inflight
+            delta = None if held is None else _held_delta(held[0], mapstore.shard_path(self.folder, self._log.shard))
             if old_T is None:
                 self.poses.pop(fid, None)
                 self._locs.pop(fid, None)

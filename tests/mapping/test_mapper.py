@@ -712,3 +712,58 @@ def test_a_frozen_save_streams_the_memory_on_the_writer_thread_while_it_is_expor
     ref = back.export()  # the default cube: the same labels as cubes of 4
     back.close()
     assert np.array_equal(ref.labels, b.labels) and np.array_equal(ref.grid.labels, b.grid.labels)
+
+
+def test_a_kept_delta_is_freed_once_its_record_is_encoded_and_a_failed_write_is_undone_from_it(tmp_path,
+                                                                                            monkeypatch):
+    """The delta writer drops a new frame's delta once its record is made (it is not alive beside the next
+    frame's working set); an append that fails after that is undone from the record: the memory again
+    equals the sum of the frames the store keeps, bit for bit."""
+    import errno
+    import gc
+    import threading
+    import weakref
+
+    from panovocc_cli.mapping.memory import Delta, FrameDelta, VoxelMemory
+    from panovocc_cli.mapping.mapper import memory_channels
+    from panovocc_cli.mapping.rpu import DeltaStore, ReversibleMemory
+
+    cfg = MapperConfig()
+    rng = np.random.default_rng(3)
+
+    def delta(seed):
+        keys = np.unique(np.random.default_rng(seed).integers(0, 10 ** 6, 5000))
+        n = len(keys)
+        return FrameDelta((Delta(keys, {"A": rng.integers(1, 2 ** 20, (n, 1)), "N": rng.integers(0, 2, (n, 1)),
+                                        "F": rng.integers(0, 2, (n, 1)), "O": rng.integers(0, 2, (n, 1))}),))
+
+    rm = ReversibleMemory(VoxelMemory(cfg.geometry.voxel_size, memory_channels(cfg)), DeltaStore(tmp_path / "m"))
+    rm.keep(0, delta(0), np.eye(4))
+    rm.store.flush()
+    before = rm.memory.to_arrays()
+    appended, go = threading.Event(), threading.Event()
+    real = mapstore.DeltaLog.append
+
+    def append(self, kind, fid, payload):  # the record is made; the write waits, then fails
+        appended.set()
+        go.wait(30)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(mapstore.DeltaLog, "append", append)
+    d = delta(1)
+    gone = weakref.ref(d)
+    rm.keep(1, d, np.eye(4))
+    del d
+    assert appended.wait(30)
+    gc.collect()
+    assert gone() is None  # freed while its record is still being written
+    go.set()
+    with pytest.raises(PanovoccError, match=r"cannot write the delta of frame 1 \(No space left on device\)"):
+        rm.checkpoint()
+    monkeypatch.setattr(mapstore.DeltaLog, "append", real)
+    assert rm.store.ids() == [0]
+    after = rm.memory.to_arrays()
+    assert sorted(after) == sorted(before)
+    for k in before:
+        np.testing.assert_array_equal(after[k], before[k])
+    rm.close()

@@ -342,6 +342,7 @@ def test_memory_and_store_agree_after_a_failed_write(room_seq, tmp_path, monkeyp
     for i in range(2):
         m.integrate(frames(i))
         ref.integrate(frames(i))
+    m.close()  # frame 1's record written before appends start failing (else the writer thread may still be on it)
     real = mapstore.DeltaLog.append
     monkeypatch.setattr(mapstore.DeltaLog, "append",
                         lambda self, *a: (_ for _ in ()).throw(OSError(errno.EROFS, "Read-only file system")))
