@@ -79,10 +79,10 @@ def main() -> None:
             peaks[ph] = max(peaks.get(ph, 0.0), r)
             time.sleep(0.003)
 
-    threading.Thread(target=sampler, daemon=True).start()
     from panovocc_cli.runtime import setup
 
-    setup()
+    setup()  # before the sampler thread starts: its malloc arena then follows the command's settings
+    threading.Thread(target=sampler, daemon=True).start()
     from panovocc_cli.cli import main as cli_main
     from panovocc_cli.mapping import mapper as mapper_mod
     from panovocc_cli.mapping import pipeline
