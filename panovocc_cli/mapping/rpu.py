@@ -98,13 +98,16 @@ def _frame_delta(parts, observation=None) -> FrameDelta:
     return FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts), obs)
 
 
+def _record_delta(payload: bytes, where=None) -> FrameDelta:
+    """A PUT record's payload as the FrameDelta that was put (parts and kept observation)."""
+    rec = mapstore.decode_record(payload, where)
+    return _frame_delta(rec.parts, rec.observation)
+
+
 def _held_delta(held, where) -> FrameDelta:
     """The delta of a pending append whose write failed: as it was put, or decoded from its record once the
-    writer has encoded it (the same channels bit for bit: what a revision reads back from the log)."""
-    if isinstance(held, FrameDelta):
-        return held
-    rec = mapstore.decode_record(held, where)
-    return _frame_delta(rec.parts)
+    writer has encoded it (the same channels and observation bit for bit: what a revision reads back)."""
+    return held if isinstance(held, FrameDelta) else _record_delta(held, where)
 
 
 def _record_parts(delta: FrameDelta) -> list:
@@ -242,8 +245,7 @@ class DeltaStore:
         fid = int(frame_id)
         T = np.array(T_world_cam, np.float64)
         if self.folder is None:
-            rec = mapstore.decode_record(payload)
-            d = _frame_delta(rec.parts, rec.observation)
+            d = _record_delta(payload)
             self.poses[fid] = T
             self._ram[fid] = (_compact_parts(d), d.observation)
             return
