@@ -14,7 +14,9 @@ a pose file that moves ``--revise`` frames (the tail of the run, as a late loop 
 * bytes per voxel in RAM: geometry per allocated voxel, semantics per row (with its share of the pages),
   all of the memory per occupied voxel (``VoxelMemory.nbytes``);
 * peak RSS of ``map`` (the kernel's ``ru_maxrss`` of the process), its resident memory after the first frame
-  (its start-up footprint) and the ratio of the peak above that to the memory held;
+  (its start-up footprint) and the ratio of the peak above that to the memory held; the same above its
+  resident memory once the frame pipeline is full (after the third frame: the reading, integrating and
+  writing threads have each held a frame, a working set that depends on the image size, not on the map);
 * the delta store: bytes per frame, files, and what an hour at 10 Hz would take at that rate;
 * wall time per frame (from ``--frame-times``: checkpoints, reading and segmentation included), the
   median over frames 10-20 % of the run and over the last 10 %, and their ratio; the same for the
@@ -40,6 +42,7 @@ import numpy as np
 from . import panovocc_command
 
 HOUR_FRAMES = 36_000  # an hour at 10 Hz
+PIPELINE_FRAMES = 3  # frames after which map's reading, integrating and writing threads have each held one
 
 
 
@@ -60,7 +63,9 @@ def timed(cmd: list, log: Path) -> dict:
 
 def frame_costs(csv_path: Path) -> dict:
     """Per-frame wall times from a ``map --frame-times`` CSV: early (10-20 %) and late (last 10 %) medians,
-    the checkpoint cost, and the resident memory after the first frame."""
+    the checkpoint cost, the resident memory after the first frame and once the frame pipeline is full (after
+    the third frame: frame k + 1 read and segmented and frame k - 1's record written while frame k is
+    integrated, so each of the three threads has held a frame)."""
     rows = list(csv.DictReader(open(csv_path)))
     t = np.array([float(r["t_s"]) for r in rows])
     cpu = np.diff(np.array([float(r["cpu_s"]) for r in rows]), prepend=0.0)  # the first: from the loop's start
@@ -78,7 +83,8 @@ def frame_costs(csv_path: Path) -> dict:
             "cpu_ms_early": 1e3 * float(np.median(cpu[sl_early])), "cpu_ms_late": 1e3 * float(np.median(cpu[sl_late])),
             "late_over_early": float(np.median(late) / np.median(early)),
             "checkpoint_ms": 1e3 * float(np.median(dt[ck | after]) - np.median(dt[~(ck | after)])) if ck.any() else None,
-            "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20, "dt": dt, "cpu": cpu}
+            "checkpoints": int(ck.sum()), "startup_rss_bytes": float(rss[0]) * 2 ** 20,
+            "pipeline_rss_bytes": float(rss[:PIPELINE_FRAMES].max()) * 2 ** 20, "dt": dt, "cpu": cpu}
 
 
 def memory_figures(map_dir: Path) -> dict:
@@ -159,6 +165,8 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
     out = {"scene": scene, "width": width, "seed": seed, "frames": fc["frames"], **mem,
            "map_wall_s": mrun["wall_s"], "peak_rss_bytes": peak, "startup_rss_bytes": fc["startup_rss_bytes"],
            "peak_above_startup_over_memory": (peak - fc["startup_rss_bytes"]) / mem["memory_bytes"],
+           "pipeline_rss_bytes": fc["pipeline_rss_bytes"],
+           "peak_above_pipeline_over_memory": (peak - fc["pipeline_rss_bytes"]) / mem["memory_bytes"],
            "ms_per_frame_early": fc["ms_early"], "ms_per_frame_late": fc["ms_late"],
            "late_over_early": fc["late_over_early"], "cpu_ms_per_frame_early": fc["cpu_ms_early"],
            "cpu_ms_per_frame_late": fc["cpu_ms_late"], "checkpoints": fc["checkpoints"],
@@ -189,6 +197,9 @@ def table_rows(r: dict) -> list:
         ("peak RSS of map (after the first frame)", f"{r['peak_rss_bytes'] / mb:.0f} MB "
                                                     f"({r['startup_rss_bytes'] / mb:.0f} MB)"),
         ("peak above start-up / memory held", f"{r['peak_above_startup_over_memory']:.2f}"),
+        ("the same above the full frame pipeline (after the third frame)",
+         "-" if r.get("pipeline_rss_bytes") is None else
+         f"{r['peak_above_pipeline_over_memory']:.2f} ({r['pipeline_rss_bytes'] / mb:.0f} MB)"),
         ("delta store: MB per frame, files", f"{r['delta_bytes_per_frame'] / mb:.3f}, {r['delta_store_files']}"),
         ("an hour at 10 Hz at that rate", f"{r['hour_at_10hz_bytes'] / 1e9:.1f} GB"),
         ("ms per frame, frames 10-20 % / last 10 %", f"{r['ms_per_frame_early']:.1f} / {r['ms_per_frame_late']:.1f}"

@@ -381,6 +381,8 @@ def test_frame_times_csv_and_the_scale_benchmarks_figures(room_seq, tmp_path):
     assert [int(r["checkpoint"]) for r in rows] == [int((i + 1) % 2 == 0 and i + 1 < len(rows)) for i in range(len(rows))]
     fc = frame_costs(times)
     assert fc["frames"] == len(rows) and fc["ms_early"] > 0 and fc["ms_late"] > 0 and fc["checkpoints"] >= 1
+    rss = [float(r["rss_mb"]) * 2 ** 20 for r in rows]
+    assert fc["startup_rss_bytes"] == rss[0] and fc["pipeline_rss_bytes"] == max(rss[:3])  # after the third frame
     with pytest.raises(PanovoccError, match="already exists"):
         run_map(_cfg(room_seq, tmp_path / "m2", frame_times=str(times)), progress=False)
     assert not (tmp_path / "m2").exists()
