@@ -12,7 +12,8 @@ frame's delta, and returns
   folder as they read a sequential run's, and checkpoints are made as the sequential run makes them);
 * the shard's partial memory (:func:`~panovocc_cli.mapping.shards.encode_partial`: its non-zero voxels in
   the same compact encoding), which stays on the cluster: pairs of partial memories are added by further
-  tasks, a tree whose root alone goes to the client, to be added to its memory.
+  tasks, a tree whose top (its last two sums) goes to the client, which adds each to its memory as soon as
+  it is done.
 
 Integer sums are exact and order-free, so the folder's bytes do not depend on the number of workers, on
 the shards, or on failures: a worker lost mid-shard (its process dies) has that shard, and any partial sum
@@ -34,7 +35,9 @@ from ..mapping.shards import decode_partial, integrate_shard, shard_ranges, sum_
 from .tasks import check_code, code_fingerprint
 
 WAIT_FOR_WORKERS_S = 60  # a scheduler without workers: how long to wait for the first one
-SHARDS_PER_WORKER = 4  # shards a worker gets on average: balance against a slow worker, few partial memories
+SHARDS_PER_WORKER = 1  # shards a worker gets: each costs a partial memory (made, encoded, summed), ~0.7 s on a
+#                       home at 512x256 (docs/sharding.md, "Throughput"); more balance a slow worker better
+TOP_PARTIALS = 2  # the partial sums the client adds itself (the tree stops there)
 EXIT_HOOK_ENV = "PANOVOCC_TEST_SHARD_EXIT"  # tests: a marker path; the first worker to reach the middle of a
 #                                             shard creates it and exits at once (a worker lost mid-shard)
 
@@ -114,7 +117,7 @@ class DaskShards:
         kernels (timing runs start warm)
 
     After a run, :attr:`stats` holds the shard count, workers, the bytes sent back: records (to the
-    client) and partial memories (to the tree's sums; its root to the client), the wall seconds of the run
+    client) and partial memories (to the tree's sums; its top two to the client: ``root_bytes``), the wall seconds of the run
     after the warm-up, the workers' CPU seconds in the shards and the client's CPU seconds meanwhile.
     """
 
@@ -171,7 +174,7 @@ class DaskShards:
         workers = max(1, len(self.client.scheduler_info().get("workers", {})))
         if self.warm:
             self.warm_workers(cfg, ids[0])
-            warm_kernels(cfg.mapper_config())  # the client's add of the root: kernels loaded before the clock
+            warm_kernels(cfg.mapper_config())  # the client's adds of the top sums: kernels loaded before the clock
         t0, c0 = time.perf_counter(), time.process_time()
         cfg_json, code = json.dumps(cfg.to_json(), sort_keys=True), code_fingerprint()
         ranges = shard_ranges(ids, workers * self.shards_per_worker)
@@ -182,15 +185,29 @@ class DaskShards:
         level = [self._submit(_partial, f, key=f"panovocc-partial-{token}-{k:05d}") for k, f in enumerate(shards)]
         del shards  # each shard's result is freed once its records and partial memory are taken from it
         depth = 0
-        while len(level) > 1:  # the tree reduction: neighbours added pairwise, on the cluster
+        while len(level) > TOP_PARTIALS:  # the tree reduction: neighbours added pairwise, on the cluster
             depth += 1
             level = [self._submit(sum_partials, *level[j:j + 2], key=f"panovocc-sum-{token}-{depth}-{j:05d}")
                      if j + 1 < len(level) else level[j] for j in range(0, len(level), 2)]
+        # the tree's top (one or two partial sums) is added here, each as soon as it is done, while later
+        # shards still run: no last sum task, no encoding of its result (integer sums: any order, exact)
         index = {f.key: k for k, f in enumerate(records)}
+        top = {f.key for f in level}
         arrived, nxt = {}, 0
-        record_bytes = partial_bytes = 0
+        record_bytes = partial_bytes = root_bytes = 0
         shard_cpu = 0.0
-        for fut in as_completed(records):
+        for fut in as_completed([*records, *level]):
+            if fut.key in top:
+                blob = self._result(fut)
+                fut.release()
+                root_bytes += len(blob)
+                h, specs, delta = decode_partial(blob)
+                del blob
+                if h != mapper.memory.voxel_size or list(specs) != list(mapper.memory.specs):
+                    raise PanovoccError("the workers' partial memory has another channel layout than the map")
+                mapper.add_sum(delta)
+                del delta
+                continue
             k = index[fut.key]
             arrived[k] = self._result(fut)
             fut.release()
@@ -204,11 +221,6 @@ class DaskShards:
                     mapper.keep_encoded(fid, payload, T, empty=fid in empty)
                     yield fid
                 nxt += 1
-        root = self._result(level[0])
-        h, specs, delta = decode_partial(root)
-        if h != mapper.memory.voxel_size or list(specs) != list(mapper.memory.specs):
-            raise PanovoccError("the workers' partial memory has another channel layout than the map")
-        mapper.add_sum(delta)
         self.stats = {"seconds": time.perf_counter() - t0, "client_cpu_s": time.process_time() - c0,
                       "shard_cpu_s": shard_cpu, "shards": len(ranges), "workers": workers, "frames": len(ids), "record_bytes": record_bytes,
-                      "partial_bytes": partial_bytes, "root_bytes": len(root)}
+                      "partial_bytes": partial_bytes, "root_bytes": root_bytes}

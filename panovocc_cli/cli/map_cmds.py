@@ -46,12 +46,16 @@ def map_cmd(
                                   help="Integrate the frames in shards on the workers of this running Dask "
                                        "scheduler (tcp://HOST:8786); they must see SEQ at the same path and run "
                                        "this checkout (docs/sharding.md)."),
+    shards_per_worker: int = typer.Option(None, "--shards-per-worker", min=1, show_default=False,
+                                          help="Shards a worker gets with --workers/--scheduler (default 1: each "
+                                               "shard costs a partial memory; more balance slow workers better). "
+                                               "The map's bytes do not depend on it."),
 ) -> None:
     """Map a panoramic RGB-D sequence into a persistent semantic occupancy memory (OUT/) and grid
     (OUT/prediction.npz), labelling occupied voxels with classes of the vocabulary."""
     live = _live_log(rerun, rerun_connect, rerun_url, rerun_every, overwrite, o)
     try:
-        summary = _map(o, config, resume, overwrite, quiet, live, workers, scheduler)
+        summary = _map(o, config, resume, overwrite, quiet, live, workers, scheduler, shards_per_worker)
         if live is not None:
             live.close(ok=True)
     finally:
@@ -83,7 +87,9 @@ def _live_log(rrd, connect: bool, url, every: int, overwrite: bool, o: OptionVal
 
 
 def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, live, workers: int = 0,
-         scheduler: str | None = None) -> dict:
+         scheduler: str | None = None, shards_per_worker: int | None = None) -> dict:
+    if shards_per_worker is not None and not (workers or scheduler):
+        raise PanovoccError("--shards-per-worker needs --workers N or --scheduler ADDRESS")
     if workers or scheduler:
         import contextlib
         import sys
@@ -95,7 +101,7 @@ def _map(o: OptionValues, config, resume: bool, overwrite: bool, quiet: bool, li
             raise PanovoccError("give --workers N (a local cluster) or --scheduler ADDRESS (a running one), not both")
         with contextlib.ExitStack() as stack:
             client = stack.enter_context(dask_client(scheduler, workers, log=None if quiet else sys.stderr))
-            shards = DaskShards(client)
+            shards = DaskShards(client) if shards_per_worker is None else DaskShards(client, shards_per_worker)
             shards.check_workers()  # other code, or no workers: one line before anything is written
             summary = _map_with(o, config, resume, overwrite, quiet, live, shards)
             summary["shards"] = shards.stats
@@ -149,7 +155,8 @@ def _report(summary: dict) -> None:
         st = summary["shards"]
         typer.echo(f"shards: {st['shards']} on {st['workers']} worker(s); sent back {st['record_bytes'] / 1e6:.1f} MB "
                    f"of delta records ({st['record_bytes'] / max(st['frames'], 1) / 1e6:.3f} MB a frame) and "
-                   f"{st['partial_bytes'] / 1e6:.1f} MB of partial memories ({st['root_bytes'] / 1e6:.1f} MB summed)")
+                   f"{st['partial_bytes'] / 1e6:.1f} MB of partial memories (to this process: {st['root_bytes'] / 1e6:.1f} MB of "
+                   "sums)")
     if "slam" in summary:
         sl = summary["slam"]
         unplaced = sl["unplaced_frames"]

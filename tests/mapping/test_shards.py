@@ -257,10 +257,14 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
 
     out = tmp_path / "cli"
     code, so, err = run_cli(capsys, ["map", labelled_room, out, "--workers", "2", "--checkpoint-every", "3",
-                                     "--vocab", "wall,table,cabinet,shelf", "--offsets", "--quiet"])
+                                     "--vocab", "wall,table,cabinet,shelf", "--offsets", "--quiet",
+                                     "--shards-per-worker", "4"])
     assert code == 0, err
+    # 8 shards: a tree of sums on the workers down to two, which the client adds
     assert f"mapped {N} of {N} frames" in so and "shards: 8 on 2 worker(s)" in so
     assert folder_bytes(out) == folder_bytes(sequential)
+    code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--shards-per-worker", "2"])
+    assert code == 2 and "--shards-per-worker needs --workers" in err and not (tmp_path / "f").exists()
     # one line, exit 2, nothing written
     code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--frames", "6:3"])
     assert code == 2 and "--frames 6:3" in err and len(err.strip().splitlines()) == 1
