@@ -73,13 +73,32 @@ def _prepare(cfg_json: str, code: str, what: str):
     return _frames(cfg_json)
 
 
-def shard_task(cfg_json: str, code: str, ids: list) -> tuple:
+def _progress_hook(topic: str | None, exit_hook):
+    """After each frame of a shard: the exit hook (tests), then one event on ``topic`` (the client's
+    progress bar counts frames as the workers integrate them, not only as whole shards come back)."""
+    if not topic:
+        return exit_hook
+    from distributed import get_worker
+
+    try:
+        worker = get_worker()
+    except ValueError:  # not on a Dask worker (called directly): no events
+        return exit_hook
+
+    def after(k):
+        if exit_hook is not None:
+            exit_hook(k)
+        worker.log_event(topic, 1)
+    return after
+
+
+def shard_task(cfg_json: str, code: str, ids: list, topic: str | None = None) -> tuple:
     """On a worker: integrate frames ``ids``; returns (records, partial memory bytes, their length, the
-    worker's CPU seconds on them)."""
+    worker's CPU seconds on them). ``topic``: an event is logged on it after each frame."""
     frames = _prepare(cfg_json, code, f"the shard of frames {ids[0]}:{ids[-1] + 1}")
     cfg = MapConfig.from_json(json.loads(cfg_json), "the client's map config")
     c0 = time.process_time()
-    records, partial = integrate_shard(cfg.mapper_config(), frames, ids, _exit_hook(ids))
+    records, partial = integrate_shard(cfg.mapper_config(), frames, ids, _progress_hook(topic, _exit_hook(ids)))
     return records, partial, len(partial), time.process_time() - c0
 
 
@@ -126,6 +145,7 @@ class DaskShards:
         self.shards_per_worker = int(shards_per_worker)
         self.warm = warm
         self.stats: dict = {}
+        self.progress = None  # a tqdm bar, set by run_map: advanced as the workers integrate frames
 
     def _submit(self, fn, *args, key: str):
         return self.client.submit(fn, *args, key=key, pure=False)
@@ -164,8 +184,6 @@ class DaskShards:
         return [self._result(f) for f in futs]
 
     def __call__(self, mapper, cfg: MapConfig, ids):
-        from distributed import as_completed
-
         ids = [int(i) for i in ids]
         if not ids:
             return
@@ -179,7 +197,22 @@ class DaskShards:
         cfg_json, code = json.dumps(cfg.to_json(), sort_keys=True), code_fingerprint()
         ranges = shard_ranges(ids, workers * self.shards_per_worker)
         token = uuid.uuid4().hex[:12]
-        shards = [self._submit(shard_task, cfg_json, code, r, key=f"panovocc-shard-{token}-{k:05d}")
+        topic = f"panovocc-progress-{token}" if self.progress is not None else None
+        advance = _Advance(self.progress, len(ids))
+        if topic is not None:
+            self.client.subscribe_topic(topic, lambda event: advance(int(event[1])))
+        try:
+            yield from self._run(mapper, ids, ranges, workers, cfg_json, code, token, topic)
+        finally:
+            if topic is not None:
+                self.client.unsubscribe_topic(topic)
+        advance(len(ids))  # events are best effort: the bar ends full once every record is kept
+        self.stats.update(seconds=time.perf_counter() - t0, client_cpu_s=time.process_time() - c0)
+
+    def _run(self, mapper, ids, ranges, workers, cfg_json, code, token, topic):
+        from distributed import as_completed
+
+        shards = [self._submit(shard_task, cfg_json, code, r, topic, key=f"panovocc-shard-{token}-{k:05d}")
                   for k, r in enumerate(ranges)]
         records = [self._submit(_records, f, key=f"panovocc-records-{token}-{k:05d}") for k, f in enumerate(shards)]
         level = [self._submit(_partial, f, key=f"panovocc-partial-{token}-{k:05d}") for k, f in enumerate(shards)]
@@ -221,6 +254,25 @@ class DaskShards:
                     mapper.keep_encoded(fid, payload, T, empty=fid in empty)
                     yield fid
                 nxt += 1
-        self.stats = {"seconds": time.perf_counter() - t0, "client_cpu_s": time.process_time() - c0,
-                      "shard_cpu_s": shard_cpu, "shards": len(ranges), "workers": workers, "frames": len(ids), "record_bytes": record_bytes,
+        self.stats = {"shard_cpu_s": shard_cpu, "shards": len(ranges), "workers": workers, "frames": len(ids), "record_bytes": record_bytes,
                       "partial_bytes": partial_bytes, "root_bytes": root_bytes}
+
+
+class _Advance:
+    """``advance(k)``: move ``bar`` on by ``k`` frames, never past ``total`` (a shard computed again after a
+    lost worker reports its frames twice). Called from the client's event loop and from its own thread."""
+
+    def __init__(self, bar, total: int):
+        import threading
+
+        self.bar, self.total, self.done = bar, int(total), 0
+        self._lock = threading.Lock()
+
+    def __call__(self, k: int) -> None:
+        if self.bar is None:
+            return
+        with self._lock:
+            k = max(0, min(int(k), self.total - self.done))
+            self.done += k
+        if k:
+            self.bar.update(k)

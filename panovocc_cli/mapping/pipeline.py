@@ -450,7 +450,8 @@ def run_map(cfg: MapConfig | None = None, resume_out: str | Path | None = None, 
     shards : optional; the frames are integrated elsewhere: ``shards(mapper, cfg, ids)`` keeps each frame's
         record in ``mapper`` in frame order (``Mapper.keep_encoded``), yielding its id after each, and adds
         the exact sum of their deltas (``Mapper.add_sum``) before it ends (benchmark/sharded.py: Dask
-        workers). The folder's bytes are those of the run in this process.
+        workers). The folder's bytes are those of the run in this process. A driver with a ``progress``
+        attribute is handed the progress bar and moves it itself (frames as the workers integrate them).
 
     Returns
     -------
@@ -595,8 +596,12 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if times is not None:
                 times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
                               resident_mb()))
+        counted = shards is not None and hasattr(shards, "progress")  # the driver moves the bar as frames are done
+        if counted:
+            shards.progress = bar
         for i in (shards(mapper, cfg, run_ids) if shards is not None else ()):  # records kept in frame order
-            bar.update(1)
+            if not counted:
+                bar.update(1)
             done = todo_pos[i] + 1
             if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < n:
                 mapper.checkpoint(background=True)

@@ -110,6 +110,37 @@ def _records(out):
         log.close()
 
 
+def _counting_shards():
+    from panovocc_cli.benchmark.sharded import DaskShards
+
+    class Counting(DaskShards):
+        """DaskShards whose progress bar records each step it is moved by."""
+
+        @property
+        def progress(self):
+            return self._bar
+
+        @progress.setter
+        def progress(self, bar):
+            self.steps = []
+            self._bar = None if bar is None else _Steps(bar, self.steps)
+
+    return Counting
+
+
+class _Steps:
+    def __init__(self, bar, steps):
+        self.bar, self.steps = bar, steps
+
+    def update(self, k):
+        self.steps.append(k)
+        self.bar.update(k)
+
+
+def _CountingShards(*a, **k):
+    return _counting_shards()(*a, **k)
+
+
 def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_worker(labelled_room, sequential,
                                                                                        tmp_path):
     from distributed import Client, LocalCluster
@@ -124,10 +155,13 @@ def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_wo
             cluster.scale(n)
             client.wait_for_workers(n)
             out = tmp_path / f"w{n}"
-            shards = DaskShards(client, shards_per_worker=2)
+            shards = _CountingShards(client, shards_per_worker=2)
             s = run_map(_cfg(labelled_room, out), progress=False, shards=shards)
             assert s["integrated"] == N and shards.stats["workers"] == n and shards.stats["shards"] == min(N, 2 * n)
             assert folder_bytes(out) == want, n
+            # the bar moved as the workers integrated frames (their events), not in shard-sized steps
+            # only, and ended at the frame count
+            assert sum(shards.steps) == N and len(shards.steps) > min(N, 2 * n), shards.steps
         # a run killed after 3 frames, resumed on the workers
         out = tmp_path / "resumed"
         run_map(_cfg(labelled_room, out), progress=False, stop_after=3)
