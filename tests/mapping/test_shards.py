@@ -296,6 +296,7 @@ def test_cli_map_on_workers_and_its_refusals(labelled_room, sequential, tmp_path
     assert code == 0, err
     # 8 shards: a tree of sums on the workers down to two, which the client adds
     assert f"mapped {N} of {N} frames" in so and "shards: 8 on 2 worker(s)" in so
+    assert "ms of CPU a frame" in so and "update 0.0 ms" not in so  # the workers' figure, not the client's
     assert folder_bytes(out) == folder_bytes(sequential)
     code, _, err = run_cli(capsys, ["map", labelled_room, tmp_path / "f", "--shards-per-worker", "2"])
     assert code == 2 and "--shards-per-worker needs --workers" in err and not (tmp_path / "f").exists()
