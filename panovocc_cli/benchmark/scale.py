@@ -198,7 +198,6 @@ def table_rows(r: dict) -> list:
                                                     f"({r['startup_rss_bytes'] / mb:.0f} MB)"),
         ("peak above start-up / memory held", f"{r['peak_above_startup_over_memory']:.2f}"),
         ("the same above the full frame pipeline (after the third frame)",
-         "-" if r.get("pipeline_rss_bytes") is None else
          f"{r['peak_above_pipeline_over_memory']:.2f} ({r['pipeline_rss_bytes'] / mb:.0f} MB)"),
         ("delta store: MB per frame, files", f"{r['delta_bytes_per_frame'] / mb:.3f}, {r['delta_store_files']}"),
         ("an hour at 10 Hz at that rate", f"{r['hour_at_10hz_bytes'] / 1e9:.1f} GB"),

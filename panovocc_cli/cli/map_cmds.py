@@ -148,15 +148,14 @@ def _report(summary: dict) -> None:
     if "corrected" in summary:
         classed += f", {summary['corrected']} pose corrections applied"
     seg = f", segmenter {summary['segmenter_ms_per_frame']:.1f} ms" if "segmenter_ms_per_frame" in summary else ""
+    st = summary.get("shards")
     detail = f"update {summary['update_ms_per_frame']:.1f} ms{seg}"
-    if summary.get("shards"):  # the frames were read, segmented and integrated on the workers, not timed here
-        st = summary["shards"]
+    if st:  # the frames were read, segmented and integrated on the workers, not timed here
         detail = f"on the workers {1e3 * st['shard_cpu_s'] / max(st['frames'], 1):.1f} ms of CPU a frame"
     typer.echo(f"mapped {summary['integrated']} of {summary['frames']} frames, {summary['ms_per_frame']:.1f} ms/frame "
                f"({detail}): {summary['occupied']} occupied{classed}, "
                f"{summary['free']} free voxels -> {summary['out']}")
-    if summary.get("shards"):
-        st = summary["shards"]
+    if st:
         typer.echo(f"shards: {st['shards']} on {st['workers']} worker(s); sent back {st['record_bytes'] / 1e6:.1f} MB "
                    f"of delta records ({st['record_bytes'] / max(st['frames'], 1) / 1e6:.3f} MB a frame) and "
                    f"{st['partial_bytes'] / 1e6:.1f} MB of partial memories (to this process: {st['root_bytes'] / 1e6:.1f} MB of "

@@ -110,11 +110,26 @@ def _records(out):
         log.close()
 
 
-def _counting_shards():
-    from panovocc_cli.benchmark.sharded import DaskShards
+class _Steps:
+    """A progress bar's stand-in that records each step it is moved by, and moves the bar."""
 
-    class Counting(DaskShards):
-        """DaskShards whose progress bar records each step it is moved by."""
+    def __init__(self, bar, steps):
+        self.bar, self.steps = bar, steps
+
+    def update(self, k):
+        self.steps.append(k)
+        self.bar.update(k)
+
+
+def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_worker(labelled_room, sequential,
+                                                                                       tmp_path):
+    from distributed import Client, LocalCluster
+
+    from panovocc_cli.benchmark.runner import WORKER_ENV
+    from panovocc_cli.benchmark.sharded import EXIT_HOOK_ENV, DaskShards
+
+    class CountingShards(DaskShards):
+        """DaskShards whose progress bar (handed over by run_map) records each step it is moved by."""
 
         @property
         def progress(self):
@@ -125,29 +140,6 @@ def _counting_shards():
             self.steps = []
             self._bar = None if bar is None else _Steps(bar, self.steps)
 
-    return Counting
-
-
-class _Steps:
-    def __init__(self, bar, steps):
-        self.bar, self.steps = bar, steps
-
-    def update(self, k):
-        self.steps.append(k)
-        self.bar.update(k)
-
-
-def _CountingShards(*a, **k):
-    return _counting_shards()(*a, **k)
-
-
-def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_worker(labelled_room, sequential,
-                                                                                       tmp_path):
-    from distributed import Client, LocalCluster
-
-    from panovocc_cli.benchmark.runner import WORKER_ENV
-    from panovocc_cli.benchmark.sharded import EXIT_HOOK_ENV, DaskShards
-
     want = folder_bytes(sequential)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0", env=WORKER_ENV,
                       silence_logs=50) as cluster, Client(cluster) as client:
@@ -155,7 +147,7 @@ def test_sharded_runs_equal_the_sequential_map_for_1_2_3_workers_and_a_killed_wo
             cluster.scale(n)
             client.wait_for_workers(n)
             out = tmp_path / f"w{n}"
-            shards = _CountingShards(client, shards_per_worker=2)
+            shards = CountingShards(client, shards_per_worker=2)
             s = run_map(_cfg(labelled_room, out), progress=False, shards=shards)
             assert s["integrated"] == N and shards.stats["workers"] == n and shards.stats["shards"] == min(N, 2 * n)
             assert folder_bytes(out) == want, n
