@@ -408,6 +408,22 @@ def _difference(ka, va, ca, kb, vb, cb, skip_kept):
     return True, keys[:r], vals[:r]
 
 
+@nb.njit(cache=True, nogil=True)  # runs on the swap thread of Mapper.revise_many
+def _mark_blocks(table_keys, table_slots, keys, marks):
+    """marks[slot] = 1 for the block of each voxel key in ``keys`` (blocks not allocated are skipped)."""
+    cache_keys = np.full(64, -1, np.int64)
+    cache_slots = np.zeros(64, np.int64)
+    for n in range(keys.shape[0]):
+        bkey, _ = _block_key_and_offset(keys[n])
+        _, bj, bk = _unpack(bkey)
+        e = (bk & 7) | ((bj & 7) << 3)
+        if cache_keys[e] != bkey:
+            cache_keys[e] = bkey
+            cache_slots[e] = _find(table_keys, table_slots, bkey)
+        if cache_slots[e] >= 0:
+            marks[cache_slots[e]] = 1
+
+
 @nb.njit(cache=True)
 def _rehash(block_keys, n_blocks, cap):
     tk = np.full(cap, -1, np.int64)
@@ -689,6 +705,7 @@ class VoxelMemory:
                               np.int32)
         self.n_pages = self.n_rows = 0
         self._nonzero = None  # (keys, locations) of the last nonzero(), until the next add
+        self._marks = None  # with track_changes(): 1 per block slot that an add has reached since
 
     def spec(self, name: str) -> ChannelSpec:
         for c in self.specs:
@@ -754,6 +771,10 @@ class VoxelMemory:
                 if has_dense:
                     self._add_group("dense", keys, vals, dcols, -sign)
                 self._refuse("sparse", keys[stop])
+        if self._marks is not None:
+            if len(self._marks) < self.n_blocks:
+                self._marks = np.concatenate([self._marks, np.zeros(len(self._block_keys) - len(self._marks), np.uint8)])
+            _mark_blocks(self._table_keys, self._table_slots, keys, self._marks)
 
     def replace(self, old: "Delta | FrameDelta", new: "Delta | FrameDelta") -> None:
         """Subtract ``old`` and add ``new`` (a revised frame's kept and recomputed deltas): the memory that
@@ -794,6 +815,30 @@ class VoxelMemory:
         except PanovoccError:
             self.add(FrameDelta(tuple(olds)), +1)
             raise
+
+    def track_changes(self) -> None:
+        """From now on, remember which blocks an add (or :meth:`replace`) reaches: :meth:`changed_corners`."""
+        self._marks = np.zeros(len(self._block_keys), np.uint8)
+
+    def changed_corners(self, margin: int = 1) -> np.ndarray:
+        """Voxel keys (m,) int64, sorted: the 8 corners of each block that an add reached since
+        :meth:`track_changes`, the block grown by ``margin`` voxels on every side (clipped to the key range).
+
+        A conservative stand-in for the changed voxels (:func:`.export.export_memory`'s incremental labels,
+        ``panovocc revise``): an axis-aligned box at least ``8 + 2 * margin`` voxels wide on every axis that
+        holds a changed voxel, or a voxel within ``margin`` of one, holds one of these corners (along each
+        axis the grown block's interval meets the box's and is not wider, so one of its two ends lies in it).
+        Costs one byte a block slot while tracked, instead of every changed voxel's key."""
+        from ..geometry.lattice import KEY_RANGE
+
+        if self._marks is None:
+            raise PanovoccError("changed_corners needs track_changes() first")
+        slots = np.flatnonzero(self._marks[:self.n_blocks])
+        b = np.stack(unpack_index(self._block_keys[slots]), axis=1)  # (m, 3) block indices
+        ends = np.stack([b * BLOCK - margin, b * BLOCK + BLOCK - 1 + margin])  # (2, m, 3)
+        corners = np.stack([np.stack([ends[(c >> a) & 1, :, a] for a in range(3)], axis=1) for c in range(8)])
+        corners = np.clip(corners.reshape(-1, 3), 1 - KEY_RANGE, KEY_RANGE - 1)
+        return np.unique(pack_index(corners[:, 0], corners[:, 1], corners[:, 2]))
 
     def _add_group(self, group: str, keys, vals, cols, sign) -> int | None:
         """Scatter-add one group's columns; growing and widening as needed. Returns None when done, or the

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 import shutil
 import sys
@@ -35,7 +36,7 @@ from ..errors import PanovoccError
 from ..frame import Frame
 from ..io import mapstore
 from ..io.atomic import check_outputs, clean_temporaries, write_text
-from ..io.grid import write_grid
+from ..io.grid import read_grid, write_grid
 from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_first_pose, write_poses
 from ..io.sequence import Sequence, read_meta
@@ -385,6 +386,45 @@ def _writer_lock(out: Path):
         yield
 
 
+EXPORT_RECORD = "export.json"
+"""In ``deltas/``: the SHA-256 of the memory snapshot that ``prediction.npz`` was exported from, and of both
+files and ``config.json``; written after the commit that saved the snapshot (``map``, ``revise``). While it
+still describes the folder, ``revise`` labels again only the GSC cubes near the voxels it changes and takes
+the other labels from ``prediction.npz`` (the same labels as a whole export, bit for bit: docs/mapping.md
+"Incremental revise export"); a folder it does not describe (a run killed after its commit, a file
+changed by hand, a map made before it) gets the whole export."""
+
+
+def record_export(out: Path) -> None:
+    """Write :data:`EXPORT_RECORD` for the exports and the memory snapshot now in ``out`` (call after the
+    commit of the save that wrote the snapshot, once ``prediction.npz`` is written)."""
+    from .rpu import SNAPSHOT_NAME, sha256_file
+
+    with np.load(out / mapstore.DELTAS_DIR / SNAPSHOT_NAME, allow_pickle=False) as z:
+        memory = str(z["memory_sha256"])
+    rec = {"memory_sha256": memory, "prediction_sha256": sha256_file(out / "prediction.npz"),
+           "config_sha256": sha256_file(out / mapstore.CONFIG_NAME)}
+    write_text(out / mapstore.DELTAS_DIR / EXPORT_RECORD, json.dumps(rec, indent=1) + "\n")
+
+
+def export_is_current(out: Path, mapper: Mapper) -> bool:
+    """Whether ``out/prediction.npz`` is the export of ``mapper``'s memory as :meth:`Mapper.load` read it
+    from ``out`` (its memory.npz with no record after it, and :data:`EXPORT_RECORD` naming that file,
+    prediction.npz and config.json as they are)."""
+    from .rpu import sha256_file
+
+    loaded, path = mapper._rpu.loaded_snapshot, out / mapstore.DELTAS_DIR / EXPORT_RECORD
+    if loaded is None or not path.is_file() or not (out / "prediction.npz").is_file():
+        return False
+    try:
+        rec = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return (isinstance(rec, dict) and rec.get("memory_sha256") == loaded
+            and rec.get("config_sha256") == sha256_file(out / mapstore.CONFIG_NAME)
+            and rec.get("prediction_sha256") == sha256_file(out / "prediction.npz"))
+
+
 def _require_deltas(out: Path) -> None:
     """revise and ``map --resume`` re-read the frames' deltas: a map folder without ``deltas/`` (a benchmark
     cache's map keeps only its outputs) is refused before anything is written."""
@@ -646,6 +686,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapper.save(out)
     finally:
         mapper.close()  # re-raises a failed delta write
+    record_export(out)  # prediction.npz is this commit's memory's export: a later revise can relabel a part
     if observer is not None:
         observer.finish(mapper, summary)
     return summary
@@ -705,6 +746,9 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
         reader = SequenceFrames(seq).read  # no segmenter: the deltas keep its observations
         mapper.frame_source = reader
         changed = [i for i in ids if not np.array_equal(new_poses[i], mapper.pose(i))]
+        incremental = export_is_current(out, mapper)  # prediction.npz is the loaded memory's export
+        if incremental:
+            mapper.memory.track_changes()  # the blocks the swaps reach: the GSC cubes to label again
         from tqdm import tqdm
 
         t0 = time.perf_counter()
@@ -721,7 +765,11 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
             # re-raises a failed write. The grid and PLY are written after the commit, as before.
             mapper.save(out, background=FROZEN)
             try:
-                ex = mapper.export(block=REVISE_GSC_BLOCK)
+                if incremental:  # only the cubes whose halo holds a changed block; the same labels
+                    ex = mapper.export(read_grid(out / "prediction.npz"), mapper.memory.changed_corners(),
+                                       block=REVISE_GSC_BLOCK)
+                else:
+                    ex = mapper.export(block=REVISE_GSC_BLOCK)
             finally:
                 mapper.close()
         except BaseException:
@@ -729,6 +777,8 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
             raise
     finally:
         mapper.close()
-    summary = {"frames": k, "revised": len(changed), "seconds": time.perf_counter() - t0}
+    summary = {"frames": k, "revised": len(changed), "seconds": time.perf_counter() - t0,
+               "incremental_export": incremental}
     summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
+    record_export(out)
     return summary

@@ -370,12 +370,12 @@ def _read_snapshot(folder: Path, memory_path: Path):
             snap = {k: np.asarray(z[k]) for k in z.files}
     except Exception:  # noqa: BLE001 - an unreadable snapshot is rebuilt from the log
         return None
-    if str(snap.get("memory_sha256", "")) != _sha256(memory_path):
+    if str(snap.get("memory_sha256", "")) != sha256_file(memory_path):
         return None
     return snap
 
 
-def _sha256(path: Path) -> str:
+def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -395,6 +395,7 @@ class ReversibleMemory:
     def __init__(self, memory: VoxelMemory, store: DeltaStore):
         self.memory = memory
         self.store = store
+        self.loaded_snapshot = None  # load(): memory.npz's SHA-256 when the memory is that file's, no record after it
 
     def _flush(self) -> None:
         """The store's pending write; a failed delta write is undone in the memory too, then one line."""
@@ -491,7 +492,7 @@ class ReversibleMemory:
             index = store.snapshot_index()
             mapstore.write_memory(folder, memory.chunked() if arrays is None else arrays, len(ids), poses,
                                   None if plain else ids)
-            index["memory_sha256"] = np.array(_sha256(folder / mapstore.MEMORY_NAME))
+            index["memory_sha256"] = np.array(sha256_file(folder / mapstore.MEMORY_NAME))
             from ..io.npz import write_npz
 
             write_npz(folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
@@ -539,6 +540,8 @@ class ReversibleMemory:
                     memory = VoxelMemory.from_arrays(arrays, mem_path)
                     rm = cls(memory, DeltaStore(folder, _log=log, _locs=locs, _poses=committed))
                     rm._replay(log.records)
+                    if not log.records:
+                        rm.loaded_snapshot = str(snap["memory_sha256"])
                     return rm
             channels = memory_specs(arrays) if channels is None else channels
             voxel_size = float(arrays["voxel_size"]) if voxel_size is None else voxel_size

@@ -364,3 +364,46 @@ def test_revise_exports_while_memory_npz_is_written_and_a_failure_on_either_thre
     assert run_revise(rev, sem_seq / "poses.txt", progress=False)["revised"] == 0
     assert blocks == [3] and _bytes(rev) == _bytes(direct)
     assert (rev / "poses.txt").read_bytes() == (direct / "poses.txt").read_bytes()
+
+
+@pytest.mark.slow
+def test_revise_relabels_near_its_change_only_while_the_export_record_holds(sem_seq, default_map, tmp_path, monkeypatch):
+    """revise labels again only the GSC cubes near the blocks it changed when deltas/export.json says
+    prediction.npz is the loaded memory's export; the bytes equal a whole export's and a direct map's. A
+    record that no longer holds (no record, a prediction.npz changed since) gives the whole export."""
+    import shutil
+
+    from panovocc_cli.io.grid import write_grid
+    from panovocc_cli.mapping import export, pipeline
+
+    direct, _ = default_map
+    wrong = circle_poses(N)
+    wrong[3, :3, 3] += 0.01  # a centimetre
+    write_poses(tmp_path / "wrong.txt", wrong)
+    rev = tmp_path / "rev"
+    run_map(MapConfig(seq=str(sem_seq), out=str(rev), checkpoint_every=2, poses=str(tmp_path / "wrong.txt")),
+            progress=False)
+    record = rev / "deltas" / pipeline.EXPORT_RECORD
+    assert set(json.loads(record.read_text())) == {"memory_sha256", "prediction_sha256", "config_sha256"}
+    wrong_map, whole = tmp_path / "wrong_map", tmp_path / "whole"
+    shutil.copytree(rev, wrong_map)
+    shutil.copytree(rev, whole)
+    (whole / "deltas" / pipeline.EXPORT_RECORD).unlink()  # as a map made before the record
+    redo = []
+    real = export.consolidate_blocks
+    monkeypatch.setattr(export, "consolidate_blocks", lambda *a, **k: redo.append(k["redo"]) or real(*a, **k))
+    s = run_revise(rev, sem_seq / "poses.txt", progress=False)
+    assert s["revised"] == 1 and s["incremental_export"] and redo[-1] is not None
+    s = run_revise(whole, sem_seq / "poses.txt", progress=False)
+    assert not s["incremental_export"] and redo[-1] is None
+    assert _bytes(rev) == _bytes(whole) == _bytes(direct)
+    # a prediction.npz changed since the record (one voxel): the whole export, which writes the right one
+    g = read_grid(rev / "prediction.npz")
+    lab = g.labels.copy()
+    lab[np.unravel_index(np.flatnonzero((lab >= 1) & (lab < 254))[0], lab.shape)] = 254
+    write_grid(rev / "prediction.npz", Grid(lab, g.origin, g.voxel_size, g.class_names))
+    s = run_revise(rev, tmp_path / "wrong.txt", progress=False)
+    assert not s["incremental_export"] and _bytes(rev) == _bytes(wrong_map)
+    # the record holds again: revised back incrementally, the direct map's bytes
+    s = run_revise(rev, sem_seq / "poses.txt", progress=False)
+    assert s["incremental_export"] and _bytes(rev) == _bytes(direct)
