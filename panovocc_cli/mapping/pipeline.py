@@ -387,15 +387,23 @@ def _writer_lock(out: Path):
 
 
 EXPORT_RECORD = "export.json"
-"""In ``deltas/``: the SHA-256 of the memory snapshot that ``prediction.npz`` was exported from, and of both
-files and ``config.json``; written after the commit that saved the snapshot (``map``, ``revise``). While it
+"""In ``deltas/``: the SHA-256 of the memory snapshot that ``prediction.npz`` was exported from, of
+``prediction.npz`` and of the mapper's settings (``MapperConfig.to_json``: not the run's own fields, so two runs
+of the same map write the same record); written after the commit that saved the snapshot (``map``, ``revise``). While it
 still describes the folder, ``revise`` labels again only the GSC cubes near the voxels it changes and takes
 the other labels from ``prediction.npz`` (the same labels as a whole export, bit for bit: docs/mapping.md
 "Incremental revise export"); a folder it does not describe (a run killed after its commit, a file
 changed by hand, a map made before it) gets the whole export."""
 
 
-def record_export(out: Path) -> None:
+def _settings_sha256(mapper: Mapper) -> str:
+    """SHA-256 of the settings an export depends on (the mapper's ``config.json`` sections, canonical JSON)."""
+    import hashlib
+
+    return hashlib.sha256(json.dumps(mapper.config.to_json(), sort_keys=True).encode()).hexdigest()
+
+
+def record_export(out: Path, mapper: Mapper) -> None:
     """Write :data:`EXPORT_RECORD` for the exports and the memory snapshot now in ``out`` (call after the
     commit of the save that wrote the snapshot, once ``prediction.npz`` is written)."""
     from .rpu import SNAPSHOT_NAME, sha256_file
@@ -403,14 +411,14 @@ def record_export(out: Path) -> None:
     with np.load(out / mapstore.DELTAS_DIR / SNAPSHOT_NAME, allow_pickle=False) as z:
         memory = str(z["memory_sha256"])
     rec = {"memory_sha256": memory, "prediction_sha256": sha256_file(out / "prediction.npz"),
-           "config_sha256": sha256_file(out / mapstore.CONFIG_NAME)}
+           "settings_sha256": _settings_sha256(mapper)}
     write_text(out / mapstore.DELTAS_DIR / EXPORT_RECORD, json.dumps(rec, indent=1) + "\n")
 
 
 def export_is_current(out: Path, mapper: Mapper) -> bool:
     """Whether ``out/prediction.npz`` is the export of ``mapper``'s memory as :meth:`Mapper.load` read it
     from ``out`` (its memory.npz with no record after it, and :data:`EXPORT_RECORD` naming that file,
-    prediction.npz and config.json as they are)."""
+    prediction.npz as it is and the mapper's settings)."""
     from .rpu import sha256_file
 
     loaded, path = mapper._rpu.loaded_snapshot, out / mapstore.DELTAS_DIR / EXPORT_RECORD
@@ -421,7 +429,7 @@ def export_is_current(out: Path, mapper: Mapper) -> bool:
     except (OSError, ValueError):
         return False
     return (isinstance(rec, dict) and rec.get("memory_sha256") == loaded
-            and rec.get("config_sha256") == sha256_file(out / mapstore.CONFIG_NAME)
+            and rec.get("settings_sha256") == _settings_sha256(mapper)
             and rec.get("prediction_sha256") == sha256_file(out / "prediction.npz"))
 
 
@@ -686,7 +694,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         mapper.save(out)
     finally:
         mapper.close()  # re-raises a failed delta write
-    record_export(out)  # prediction.npz is this commit's memory's export: a later revise can relabel a part
+    record_export(out, mapper)  # prediction.npz is this commit's memory's export: a later revise can relabel a part
     if observer is not None:
         observer.finish(mapper, summary)
     return summary
@@ -780,5 +788,5 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
     summary = {"frames": k, "revised": len(changed), "seconds": time.perf_counter() - t0,
                "incremental_export": incremental}
     summary.update(write_exports(out, mapper, cfg.semantic.ply_color, ex))
-    record_export(out)
+    record_export(out, mapper)
     return summary

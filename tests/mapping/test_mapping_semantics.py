@@ -384,7 +384,7 @@ def test_revise_relabels_near_its_change_only_while_the_export_record_holds(sem_
     run_map(MapConfig(seq=str(sem_seq), out=str(rev), checkpoint_every=2, poses=str(tmp_path / "wrong.txt")),
             progress=False)
     record = rev / "deltas" / pipeline.EXPORT_RECORD
-    assert set(json.loads(record.read_text())) == {"memory_sha256", "prediction_sha256", "config_sha256"}
+    assert set(json.loads(record.read_text())) == {"memory_sha256", "prediction_sha256", "settings_sha256"}
     wrong_map, whole = tmp_path / "wrong_map", tmp_path / "whole"
     shutil.copytree(rev, wrong_map)
     shutil.copytree(rev, whole)
