@@ -39,7 +39,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
-from ..geometry.lattice import pack_index, unpack_index
+from ..geometry.lattice import KEY_RANGE, pack_index, unpack_index
 
 FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored / FIXED_SCALE
 BLOCK = 8  # voxels per block edge
@@ -248,14 +248,20 @@ def _voxel_key(bkey, o):
 
 
 @nb.njit(cache=True, inline="always")
+def _cache_entry(bkey):
+    """A block's entry in the kernels' 64-entry direct-mapped slot cache: the low 3 bits of its k and j."""
+    _, bj, bk = _unpack(bkey)
+    return (bk & 7) | ((bj & 7) << 3)
+
+
+@nb.njit(cache=True, inline="always")
 def _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey):
     """(slot of block ``bkey``, allocating it; n_blocks). Slot -1: the table or the block storage is full.
 
     Block slots are remembered in a small direct-mapped cache indexed by the block's low (j, k) bits:
     keys in lattice order revisit the same few dozen blocks row after row, so the hash table is probed
     about once per block and frame."""
-    _, bj, bk = _unpack(bkey)
-    e = (bk & 7) | ((bj & 7) << 3)  # low 3 bits of the block's k and j indices
+    e = _cache_entry(bkey)
     if cache_keys[e] == bkey:
         return cache_slots[e], n_blocks
     if n_blocks >= block_keys.shape[0] or 2 * (n_blocks + 1) > table_keys.shape[0]:
@@ -415,8 +421,7 @@ def _mark_blocks(table_keys, table_slots, keys, marks):
     cache_slots = np.zeros(64, np.int64)
     for n in range(keys.shape[0]):
         bkey, _ = _block_key_and_offset(keys[n])
-        _, bj, bk = _unpack(bkey)
-        e = (bk & 7) | ((bj & 7) << 3)
+        e = _cache_entry(bkey)
         if cache_keys[e] != bkey:
             cache_keys[e] = bkey
             cache_slots[e] = _find(table_keys, table_slots, bkey)
@@ -829,8 +834,6 @@ class VoxelMemory:
         holds a changed voxel, or a voxel within ``margin`` of one, holds one of these corners (along each
         axis the grown block's interval meets the box's and is not wider, so one of its two ends lies in it).
         Costs one byte a block slot while tracked, instead of every changed voxel's key."""
-        from ..geometry.lattice import KEY_RANGE
-
         if self._marks is None:
             raise PanovoccError("changed_corners needs track_changes() first")
         slots = np.flatnonzero(self._marks[:self.n_blocks])

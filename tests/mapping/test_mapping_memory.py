@@ -467,16 +467,17 @@ def test_replace_reads_channels_as_views_of_any_layout():
     np.testing.assert_array_equal(matrix, np.concatenate([new.channels[c] for c in names], axis=1))
 
 
-def test_changed_corners_stand_for_every_changed_voxel_and_its_neighbours(monkeypatch):
+def test_changed_corners_stand_for_every_changed_voxel_and_its_neighbours():
     """After track_changes, every box at least a block + 2 voxels wide that holds a voxel an add reached
     (or a face neighbour of one) holds one of changed_corners(); blocks no add reached give none."""
     from panovocc_cli.geometry.lattice import unpack_keys
+    from panovocc_cli.errors import PanovoccError
     from panovocc_cli.mapping.export import _touches
 
     rng = np.random.default_rng(3)
     m = VoxelMemory(0.08, memory.GEOMETRY_CHANNELS + (ChannelSpec("E", 1),))
     m.add(_random_delta(rng, 6000, 90, ("A", "N", "F", "O", "E")))
-    with pytest.raises(Exception, match="track_changes"):
+    with pytest.raises(PanovoccError, match="track_changes"):
         m.changed_corners()
     m.track_changes()
     assert len(m.changed_corners()) == 0
