@@ -31,7 +31,9 @@ CONFIG_NAME = "config.json"
 MEMORY_NAME = "memory.npz"
 DELTAS_DIR = "deltas"
 STAGED_SUFFIX = ".new"  # a revised delta waiting for the memory file that commits it
-DELTA_COMPRESSLEVEL = 1  # zlib level of delta files (docs/mapping.md, "Delta store size")
+DELTA_COMPRESSLEVEL = 1  # zlib level of per-frame delta files (write_delta; docs/mapping.md, "Delta store size")
+RECORD_ZSTD_LEVEL = 3  # Zstandard level of the delta log's records (encode_arrays; "Delta store size")
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # a Zstandard frame's first bytes; a zlib stream's first byte is 0x78
 MEMORY_COMPRESSLEVEL = 1  # zlib level of memory.npz (channels stored as for deltas: compact, sparse rows)
 
 
@@ -625,9 +627,22 @@ def shard_ids(folder: str | Path) -> list[int]:
     return sorted(out)
 
 
-def encode_arrays(arrays: Mapping[str, np.ndarray], level: int = DELTA_COMPRESSLEVEL) -> bytes:
-    """Arrays (sorted by name) as one zlib stream: a JSON table (name, dtype, shape) and the raw bytes
-    (little-endian). Deterministic: equal arrays give equal bytes."""
+def _zstd():
+    """The Zstandard module: the standard library's from Python 3.14, else its backport (a dependency)."""
+    try:
+        from compression import zstd
+    except ImportError:
+        from backports import zstd
+    return zstd
+
+
+def encode_arrays(arrays: Mapping[str, np.ndarray], level: int = RECORD_ZSTD_LEVEL) -> bytes:
+    """Arrays (sorted by name) as one Zstandard frame: a JSON table (name, dtype, shape) and the raw bytes
+    (little-endian). Deterministic: equal arrays give equal bytes (one Zstandard version, one level).
+
+    Zstandard, not zlib (before 2026-12-04): on the 1,200-frame house's records level 3 takes 2.7 ms a
+    record against zlib level 1's 7.0, reads back in 1.8 ms against 3.0, and is 10 % smaller
+    (docs/mapping.md, "Delta store size"). :func:`decode_arrays` reads both."""
     names = sorted(arrays)
     arrs = []
     for n in names:
@@ -637,18 +652,25 @@ def encode_arrays(arrays: Mapping[str, np.ndarray], level: int = DELTA_COMPRESSL
         arrs.append(np.ascontiguousarray(a, dtype=a.dtype.newbyteorder("<")))
     table = json.dumps([[n, a.dtype.str, list(a.shape)] for n, a in zip(names, arrs)],
                        separators=(",", ":")).encode()
-    # fed to zlib array by array, as views: no copy of the record's raw bytes (twice its size, on the delta
-    # writer's thread beside the next frame's working set); the same stream as one zlib.compress of them all
-    z = zlib.compressobj(level)
+    # fed to the compressor array by array, as views: no copy of the record's raw bytes (twice its size, on
+    # the delta writer's thread beside the next frame's working set)
+    zstd = _zstd()
+    z = zstd.ZstdCompressor(level=level)
     out = [z.compress(struct.pack("<I", len(table)) + table)]
     out += [z.compress(a.reshape(-1).view(np.uint8)) for a in arrs]
     out.append(z.flush())
     return b"".join(out)
 
 
+def payload_body(payload: bytes) -> bytes:
+    """The uncompressed bytes of an :func:`encode_arrays` payload (a Zstandard frame, or the zlib stream of a
+    record written before 2026-12-04)."""
+    return _zstd().decompress(payload) if payload[:4] == ZSTD_MAGIC else zlib.decompress(payload)
+
+
 def decode_arrays(payload: bytes) -> dict:
     """Inverse of :func:`encode_arrays`."""
-    body = zlib.decompress(payload)
+    body = payload_body(payload)
     (n,) = struct.unpack_from("<I", body, 0)
     table = json.loads(body[4:4 + n])
     out, off = {}, 4 + n

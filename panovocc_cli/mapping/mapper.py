@@ -359,9 +359,11 @@ class Mapper:
     def revise_many(self, revisions: Iterable[tuple], done: Callable[[int], None] | None = None) -> int:
         """:meth:`revise` of each ``(frame_id, T_world_cam, frame or None)`` in order, frame ``i + 1``'s delta
         computed while frame ``i``'s is swapped into the memory on a second thread (the memory's kernels
-        release the GIL; ``panovocc revise``). The same calls in the same order as a loop of :meth:`revise`:
-        the same memory, records and failures (a frame listed again waits for the swap in progress, so that
-        its kept delta, which that frame's earlier swap may still be writing, is read by one thread alone).
+        release the GIL; ``panovocc revise``), and frame ``i + 1``'s kept delta read and decoded on a third
+        while frame ``i``'s new delta is computed (decompression and the decoding kernels release it too).
+        The same calls in the same order as a loop of :meth:`revise`: the same memory, records and failures
+        (a frame listed again waits for the swap in progress and reads its kept delta itself, so that the
+        delta, which that frame's earlier swap may still be writing, is read by one thread alone).
         ``done(frame_id)`` is called once a frame's swap is made. Returns the number of frames revised."""
         from concurrent.futures import ThreadPoolExecutor
 
@@ -378,13 +380,35 @@ class Mapper:
             if done is not None:
                 done(fid)
 
+        def kept(fid, T):
+            """Frame ``fid``'s kept delta, read ahead; None where :meth:`_revision` reads it itself (a pose
+            it would refuse or leave alone, a frame the map lacks: its own checks then fail in order)."""
+            try:
+                if fid not in self._rpu.store or np.array_equal(np.asarray(T, np.float64),
+                                                                self._rpu.store.poses[fid]):
+                    return None
+                return self._rpu.store.get(fid)
+            except Exception:  # noqa: BLE001 - read again, in order, by _revision
+                return None
+
         pool = None  # started by the first frame whose pose changed
+        reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise-read")
         try:
-            for fid, T, frame in revisions:
-                if pending is not None and int(fid) in swapped:
+            items = iter(revisions)
+            item = next(items, None)
+            ahead = None  # (frame id, future of its kept delta) read ahead for ``item``
+            while item is not None:
+                fid, T, frame = item
+                fid = int(fid)
+                old = ahead[1] if ahead is not None and ahead[0] == fid else None
+                item = next(items, None)
+                ahead = None
+                if item is not None and int(item[0]) not in swapped and int(item[0]) != fid:
+                    ahead = (int(item[0]), reader.submit(kept, int(item[0]), item[1]))
+                if pending is not None and fid in swapped:
                     finish()
                 try:
-                    job = self._revision(fid, T, frame)
+                    job = self._revision(fid, T, frame, old)
                 except BaseException:
                     if pending is not None:
                         finish()  # the earlier frame's failure first, as a loop of revise would raise it
@@ -398,13 +422,16 @@ class Mapper:
             if pending is not None:
                 finish()
         finally:
+            reader.shutdown(wait=True)
             if pool is not None:
                 pool.shutdown(wait=True)  # a failure in the caller's thread waits for the swap in progress
         return count
 
-    def _revision(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None):
+    def _revision(self, frame_id: int, T_world_cam: np.ndarray, frame: Frame | None, ahead=None):
         """What revising frame ``frame_id`` swaps in: (id, new delta, pose, kept delta, frame), or None when
-        the pose is unchanged. Reads the map's state only through the delta store (not the memory)."""
+        the pose is unchanged. Reads the map's state only through the delta store (not the memory).
+        ``ahead``: a future of the frame's kept delta read by :meth:`revise_many` (None or its result None:
+        read here)."""
         fid = int(frame_id)
         T = check_rigid(T_world_cam, f"frame {fid}: T_world_cam")
         if np.array_equal(T, self.pose(fid)):
@@ -415,7 +442,9 @@ class Mapper:
             if self.frame_source is None:
                 raise PanovoccError(f"frame {fid}: its data is not kept (a loaded map needs a frame_source to revise)")
             frame = self.frame_source(fid)
-        old = self._rpu.store.get(fid)
+        old = ahead.result() if ahead is not None else None
+        if old is None:
+            old = self._rpu.store.get(fid)
         frame = dataclasses.replace(frame, T_world_cam=T)
         return fid, self._delta(frame, old.observation), T, old, frame
 

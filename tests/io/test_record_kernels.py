@@ -197,9 +197,10 @@ def test_byte_planes_both_ways_equal_numpy():
     assert np.array_equal(other["ch_X"], arrays["ch_X"])
 
 
-def test_a_record_is_one_zlib_stream_of_its_table_and_raw_arrays():
-    """encode_arrays feeds zlib one array at a time (no joined copy); the bytes are those of one
-    zlib.compress of the table and the arrays' raw bytes (the records' format, unchanged)."""
+def test_a_record_is_one_zstd_frame_of_its_table_and_raw_arrays():
+    """encode_arrays feeds Zstandard one array at a time (no joined copy): the payload is one frame whose
+    bytes are the table and the arrays' raw bytes, the same for equal arrays; a record written before
+    (those bytes as one zlib stream) reads back to the same arrays."""
     import json
     import struct
     import zlib
@@ -212,7 +213,12 @@ def test_a_record_is_one_zlib_stream_of_its_table_and_raw_arrays():
     table = json.dumps([[n, a.dtype.str, list(a.shape)] for n, a in zip(names, arrs)], separators=(",", ":")).encode()
     joined = b"".join([struct.pack("<I", len(table)), table] + [a.tobytes() for a in arrs])
     payload = mapstore.encode_arrays(arrays)
-    assert payload == zlib.compress(joined, mapstore.DELTA_COMPRESSLEVEL)
+    assert payload[:4] == mapstore.ZSTD_MAGIC and mapstore.payload_body(payload) == joined
+    assert payload == mapstore.encode_arrays(dict(reversed(list(arrays.items()))))
+    old = zlib.compress(joined, 1)
+    assert mapstore.payload_body(old) == joined
+    for n in names:
+        assert np.array_equal(mapstore.decode_arrays(old)[n], arrays[n])
     back = mapstore.decode_arrays(payload)
     for n in names:
         assert np.array_equal(back[n], arrays[n]) and back[n].dtype == np.asarray(arrays[n]).dtype
