@@ -7,7 +7,7 @@ process and kept: the sequence, the segmenter, numba's kernels stay warm between
 frame's delta, and returns
 
 * the shard's delta records: each frame's PUT payload, the very bytes the sequential run appends to its
-  delta log (zlib-compressed sparse deltas, about 0.5 MB a frame at 512x256 with 12 classes), sent to the
+  delta log (Zstandard-compressed sparse deltas, about 0.5 MB a frame at 512x256 with 12 classes), sent to the
   client, which appends them in frame order to ``OUT/deltas/`` (so ``revise`` and ``--resume`` read the
   folder as they read a sequential run's, and checkpoints are made as the sequential run makes them);
 * the shard's partial memory (:func:`~panovocc_cli.mapping.shards.encode_partial`: its non-zero voxels in

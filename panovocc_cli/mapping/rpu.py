@@ -43,7 +43,7 @@ LEGACY = -1  # shard number of a frame whose delta is a file of its own (maps ma
 
 
 class _BackgroundWriter:
-    """Runs log appends on one worker thread (zlib releases the GIL) while the next frame is mapped.
+    """Runs log appends on one worker thread (Zstandard releases the GIL) while the next frame is mapped.
 
     At most one job is pending; ``wait`` re-raises a failed one."""
 

@@ -9,7 +9,7 @@ grouping; and two maps of one scene made in one world frame add up to the map of
   run's delta log holds for it, :func:`.rpu.encode_record`) and the shard's partial memory;
 * :func:`encode_partial` / :func:`decode_partial` / :func:`sum_partials` -- a partial memory as compact
   bytes (the delta record layout of :mod:`panovocc_cli.io.mapstore`: smallest integer types, sparse rows,
-  one zlib stream) and the sum of several;
+  one Zstandard frame) and the sum of several;
 * :func:`merge_configs` -- whether maps can be added (same mapping parameters, vocabulary and origin).
 
 No file is read or written here: frames come from a callable, records and partial memories as bytes.
