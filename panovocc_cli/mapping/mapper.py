@@ -364,24 +364,7 @@ class Mapper:
         The same calls in the same order as a loop of :meth:`revise`: the same memory, records and failures
         (a frame listed again waits for the swap in progress and reads its kept delta itself, so that the
         delta, which that frame's earlier swap may still be writing, is read by one thread alone).
-        ``done(frame_id)`` is called once a frame's swap is made. Returns the number of frames revised.
-
-        The new deltas' parallel kernels run on one core fewer than the process may use (numba's setting is
-        the calling thread's own, restored after): the swap thread has the last. On the 2-core machine the
-        building's 1,000-frame revise took 80.7 s wall / 145.9 s CPU with both cores given to them, 66.6 s /
-        102.4 s this way (``scripts/profile_revise.py``): a parallel kernel waits for its slowest worker, and
-        a worker sharing its core with the swap is slow. The deltas are the same bytes whatever the thread
-        count (:mod:`.psvf.splat`: fixed chunks)."""
-        import numba
-
-        threads = numba.get_num_threads()
-        numba.set_num_threads(max(1, threads - 1))
-        try:
-            return self._revise_many(revisions, done)
-        finally:
-            numba.set_num_threads(threads)
-
-    def _revise_many(self, revisions: Iterable[tuple], done: Callable[[int], None] | None) -> int:
+        ``done(frame_id)`` is called once a frame's swap is made. Returns the number of frames revised."""
         from concurrent.futures import ThreadPoolExecutor
 
         pending = None  # (frame id, future) of the swap in progress
