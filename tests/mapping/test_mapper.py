@@ -572,11 +572,17 @@ def test_revise_many_equals_a_loop_of_revise(mapped, tmp_path):
     plan = [(4, _moved(true[4], 9)), (0, true[0]), (3, true[3]), (4, true[4]), (2, true[2]), (1, true[1])]
     loop, many = start("loop"), start("many")
     assert sum(loop.revise(i, T) for i, T in plan) == 5
-    threads, done = set(), []
+    threads, done, reads = set(), [], []
     real = many._rpu.revise
     many._rpu.revise = lambda *a, **k: (threads.add(threading.current_thread().name), real(*a, **k))[1]
+    real_get = many._rpu.store.get
+    many._rpu.store.get = lambda fid: (reads.append((int(fid), threading.current_thread().name)), real_get(fid))[1]
     assert many.revise_many([(i, T, None) for i, T in plan], done=done.append) == 5
     assert done == [4, 0, 4, 2, 1] and all(t.startswith("revise") for t in threads)
+    # kept deltas read ahead on their own thread, except the first frame's and a frame listed again (read by
+    # the calling thread once the swap in progress has ended); an unchanged pose reads nothing
+    assert sorted(reads) == sorted([(4, "MainThread"), (0, "revise-read_0"), (4, "MainThread"),
+                                    (2, "revise-read_0"), (1, "revise-read_0")])
     _assert_same_memory(many, loop)
     _assert_same_memory(many, direct)
     for i in range(N):
