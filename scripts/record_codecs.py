@@ -1,5 +1,5 @@
 """What the delta log's record compression costs (docs/mapping.md, "Delta store size"): decodes every
-``--every``-th record of MAP's delta log, joins each record's arrays as ``encode_arrays`` feeds them, and
+``--every``-th record of MAP's delta log to the bytes ``encode_arrays`` compresses (``payload_body``), and
 prints, per codec (zlib 1, Zstandard 1 / 2 / 3, lz4), the mean compressed MB a record and the mean ms to
 compress and to decompress one (one thread).
 
@@ -12,8 +12,6 @@ import argparse
 import time
 import zlib
 from pathlib import Path
-
-import numpy as np
 
 from panovocc_cli.io import mapstore
 
@@ -28,8 +26,7 @@ def main() -> None:
     for kind, _fid, loc in log.records[::a.every]:
         if kind != mapstore.PUT:
             continue
-        arrays = mapstore.decode_arrays(log.read(loc))
-        raws.append(b"".join(np.ascontiguousarray(arrays[n]).tobytes() for n in sorted(arrays)))
+        raws.append(mapstore.payload_body(log.read(loc)))
     log.close()
     zstd = mapstore._zstd()
     codecs = {"zlib 1": (lambda r: zlib.compress(r, 1), zlib.decompress)}

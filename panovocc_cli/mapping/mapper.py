@@ -383,28 +383,27 @@ class Mapper:
         def kept(fid, T):
             """Frame ``fid``'s kept delta, read ahead; None where :meth:`_revision` reads it itself (a pose
             it would refuse or leave alone, a frame the map lacks: its own checks then fail in order)."""
-            try:
-                if fid not in self._rpu.store or np.array_equal(np.asarray(T, np.float64),
-                                                                self._rpu.store.poses[fid]):
+            try:  # the store's poses, not self.pose: that takes the lock the calling thread holds
+                if fid not in self._rpu.store or np.array_equal(np.asarray(T, np.float64), self._rpu.store.poses[fid]):
                     return None
                 return self._rpu.store.get(fid)
             except Exception:  # noqa: BLE001 - read again, in order, by _revision
                 return None
 
         pool = None  # started by the first frame whose pose changed
-        reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise-read")
+        reader = None  # started by the first kept delta read ahead
         try:
             items = iter(revisions)
             item = next(items, None)
-            ahead = None  # (frame id, future of its kept delta) read ahead for ``item``
+            ahead = None  # future of ``item``'s kept delta, when it is read ahead
             while item is not None:
                 fid, T, frame = item
                 fid = int(fid)
-                old = ahead[1] if ahead is not None and ahead[0] == fid else None
+                old, ahead = ahead, None
                 item = next(items, None)
-                ahead = None
                 if item is not None and int(item[0]) not in swapped and int(item[0]) != fid:
-                    ahead = (int(item[0]), reader.submit(kept, int(item[0]), item[1]))
+                    reader = reader or ThreadPoolExecutor(max_workers=1, thread_name_prefix="revise-read")
+                    ahead = reader.submit(kept, int(item[0]), item[1])
                 if pending is not None and fid in swapped:
                     finish()
                 try:
@@ -422,7 +421,8 @@ class Mapper:
             if pending is not None:
                 finish()
         finally:
-            reader.shutdown(wait=True)
+            if reader is not None:
+                reader.shutdown(wait=True)
             if pool is not None:
                 pool.shutdown(wait=True)  # a failure in the caller's thread waits for the swap in progress
         return count
