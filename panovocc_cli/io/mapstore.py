@@ -218,7 +218,7 @@ def _encode_channels(arrays: dict, prefix: str, n: int, channels: Mapping[str, n
         arr = arr.reshape(n, arr.shape[-1] if arr.ndim == 2 else -1) if n == 0 else arr.reshape(n, -1)
         if not n:
             rows = np.zeros(0, np.int64)
-        elif arr.dtype == np.int64:  # one compiled pass: np.flatnonzero(_row_any(arr))
+        elif arr.dtype in (np.int64, np.int32):  # one compiled pass: np.flatnonzero(_row_any(arr))
             rows = nonzero_rows(arr)
         else:
             rows = np.flatnonzero(_row_any(arr))

@@ -98,7 +98,7 @@ class Delta:
     """One frame's sparse contribution.
 
     keys : (n,) int64, sorted, unique voxel keys
-    channels : dict name -> (n, width) int64 (only channels the contributor produces)
+    channels : dict name -> (n, width) int64 or int32 (only channels the contributor produces)
     factors : dict name -> (factor channel, denominator): how a channel factors (``channel = factor * m /
         denominator`` with m an integer array), which the delta log stores instead of the product; a
         hint only (the writer checks it and stores the product where it does not hold)
@@ -122,8 +122,12 @@ class Delta:
 
 
 def _rows(values, n: int) -> np.ndarray:
-    """A channel as (n, width) int64 (an (n,) array is one column; an empty delta keeps its width)."""
-    a = np.asarray(values, dtype=np.int64)
+    """A channel as (n, width) int64, or int32 as it is (an (n,) array is one column; an empty delta keeps
+    its width). int32 is kept: the geometry kernel's A N F O rows (:func:`~.psvf.update._delta_rows`) are
+    int32 when they fit, and every pass over a delta reads either type (sums in int64)."""
+    a = np.asarray(values)
+    if a.dtype != np.int32:
+        a = a.astype(np.int64, copy=False)
     if a.ndim == 2 and a.shape[0] == n:
         return a
     if n == 0 and a.size == 0:
@@ -354,10 +358,11 @@ def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n
 
 def _column_matrix(arrs, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Channels ((n, w) arrays, in order) as (matrix, src): their concatenation along the columns is
-    ``matrix[:, src]``. When every channel is a column view of one (n, k) int64 array (a contributor's rows,
-    e.g. the geometry delta's (n, 4) A N F O), that array as it is (no copy); otherwise the concatenation."""
+    ``matrix[:, src]``. When every channel is a column view of one (n, k) int64 or int32 array (a contributor's
+    rows, e.g. the geometry delta's (n, 4) A N F O), that array as it is (no copy); otherwise the
+    concatenation (int64 when the types differ)."""
     base = arrs[0].base
-    if isinstance(base, np.ndarray) and base.ndim == 2 and base.dtype == np.int64 and base.shape[0] == n \
+    if isinstance(base, np.ndarray) and base.ndim == 2 and base.dtype in (np.int32, np.int64) and base.shape[0] == n \
             and base.strides[1] == base.itemsize:
         src = []
         start = base.__array_interface__["data"][0]
@@ -867,7 +872,7 @@ class VoxelMemory:
                 return start
 
     def _values(self, delta: Delta) -> tuple[np.ndarray, np.ndarray]:
-        """A delta's channels as one (n, m) int64 matrix and, per matrix column, its memory column.
+        """A delta's channels as one (n, m) int64 (or int32) matrix and, per matrix column, its memory column.
 
         When every channel is a column slice of one 2-D array (a contributor's rows, e.g. the geometry
         delta's (n, 4) A N F O), that array is used as is; otherwise the channels are concatenated."""

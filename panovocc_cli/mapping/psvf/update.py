@@ -145,7 +145,7 @@ def _extract(A, hits, F, O, lo, scale, n_fill, observe_hits):
 @nb.njit(cache=True, parallel=True)
 def _put_rows(keys, rows, o, k, a, nfo):
     """Write one :func:`_extract` part (keys ``k``, A ``a``, N F O ``nfo``) into ``keys`` and ``rows`` (n, 4)
-    int64 from row ``o`` on."""
+    (int32 or int64, :func:`_delta_rows`) from row ``o`` on."""
     for r in nb.prange(k.shape[0]):
         keys[o + r] = k[r]
         rows[o + r, 0] = a[r]
@@ -154,14 +154,21 @@ def _put_rows(keys, rows, o, k, a, nfo):
         rows[o + r, 3] = nfo[r, 2]
 
 
+_I32 = np.iinfo(np.int32)
+
+
 def _delta_rows(parts: list) -> tuple:
-    """The frame's keys (n,) int64 and rows (n, 4) int64 (A N F O) from its box's :func:`_extract` parts, in
-    order (each written once into the arrays the delta keeps: no second copy of every row). Empties
-    ``parts``: each part is freed once written, so the parts (19 bytes a row) and the rows (40) are not all
-    alive at once (docs/mapping.md, "The per-frame working set")."""
+    """The frame's keys (n,) int64 and rows (n, 4) (A N F O) from its box's :func:`_extract` parts, in
+    order (each written once into the arrays the delta keeps: no second copy of every row). The rows are
+    int32 when every A fits (N F O are 0/1 flags; A a frame's fixed-point support, at most a few units:
+    always, in practice), else int64: 24 bytes a row with the key instead of 40, the largest array of a
+    frame's working set (docs/mapping.md, "The house's peak, fourth pass"); the values are the same either
+    way. Empties ``parts``: each part is freed once written, so the parts (19 bytes a row) and the rows
+    are not all alive at once (docs/mapping.md, "The per-frame working set")."""
     n = sum(len(k) for k, _, _ in parts)
+    fits = all(len(a) == 0 or (_I32.min <= int(a.min()) and int(a.max()) <= _I32.max) for _, a, _ in parts)
     keys = np.empty(n, np.int64)
-    rows = np.empty((n, 4), np.int64)
+    rows = np.empty((n, 4), np.int32 if fits else np.int64)
     o = 0
     parts.reverse()
     while parts:
@@ -247,9 +254,12 @@ def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
         x, Pt, half, w, ax, sa, bb, surf = surfels_for(depth, T_world_cam, p, c_norm)
         lo, shape = frame_box(x, half, 1.0, T_world_cam[:3, 3], p.voxel_size, p.max_range)
         _check_box(shape)
-        d = _finish(lambda lo_s, shape_s: splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo_s, shape_s),
-                    x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
-        return (d, offset_delta(x, ax, T_world_cam[:3, 3], p.voxel_size)) if offsets else (d,)
+        parts = _slab_parts(lambda lo_s, shape_s: splat_axis(x, Pt, half, w, ax, sa, bb, p.kappa, p.voxel_size, lo_s,
+                                                             shape_s), x, depth, T_world_cam, p, lo, shape, (ax, sa, surf))
+        if offsets:
+            return _rows_delta(parts), offset_delta(x, ax, T_world_cam[:3, 3], p.voxel_size)
+        del x, Pt, half, w, ax, sa, bb, surf  # the surfels freed before the rows are joined (_rows_delta)
+        return (_rows_delta(parts),)
     x, P, half, w = lift_kernels(depth, T_world_cam, p.stride, p.alpha, p.beta, p.min_range, p.max_range,
                                  p.w_pole, p.r_half, c_norm)
     er = sr = None
@@ -266,10 +276,12 @@ def _geometry(depth, T_world_cam, p: GeometryParams, offsets: bool) -> tuple:
         box_half = half + 0.5 * p.voxel_size * np.abs(er) / p.kappa  # the splat's reach includes the chord
     lo, shape = frame_box(x, box_half, p.kappa, T_world_cam[:3, 3], p.voxel_size, p.max_range)
     _check_box(shape)
-    d = _finish(lambda lo_s, shape_s: splat(x, P, half, w, p.kappa, p.voxel_size, lo_s, shape_s, kern, er, sr),
-                x, depth, T_world_cam, p, lo, shape)
+    parts = _slab_parts(lambda lo_s, shape_s: splat(x, P, half, w, p.kappa, p.voxel_size, lo_s, shape_s, kern, er, sr),
+                        x, depth, T_world_cam, p, lo, shape)
     if not offsets:
-        return (d,)
+        del x, P, half, w, box_half, er, sr  # the kernels freed before the rows are joined (_rows_delta)
+        return (_rows_delta(parts),)
+    d = _rows_delta(parts)
     v = T_world_cam[:3, 3] - x  # these kernels have no normal: the ray, towards the camera
     return d, offset_delta(x, v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12), T_world_cam[:3, 3],
                            p.voxel_size)
@@ -345,9 +357,10 @@ SLAB_VOXELS = 1 << 18
 the same bit for bit whatever the slab (each voxel's support sums the same kernels in the same order)."""
 
 
-def _finish(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> Delta:
+def _slab_parts(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surfels=None) -> list:
     """Support, free-space test and extraction of the frame's sparse delta, a slab of the frame box (``lo``,
-    ``shape``) at a time: ``splat_box(lo_s, shape_s)`` gives the dense support grid A of a part of the box;
+    ``shape``) at a time: the slabs' :func:`_extract` parts, which :func:`_rows_delta` joins into the delta
+    (the caller drops its kernels in between). ``splat_box(lo_s, shape_s)`` gives the dense support grid A of a part of the box;
     its measurements x ((n, 3) metres, world: the voxels that contain one count in N; with the surfel
     kernel's ``surfels`` = (axes (n, 3), scales (n,) metres, surfel flags (n,) uint8), so do the voxels
     that contain ``x +- hit_k (s - n_floor) n`` of each surfel with s - n_floor <= hit_max; a surfel with
@@ -376,6 +389,10 @@ def _finish(splat_box, x, depth, T_world_cam, p: GeometryParams, lo, shape, surf
         _mark_cells(cells, i0, hits)
         parts.append(_extract(A, hits, F, O, lo_s, float(FIXED_SCALE), n_fill, bool(p.observe_hits)))
         del A, F, O, hits
+    return parts
+
+
+def _rows_delta(parts: list) -> Delta:
+    """The geometric delta of a frame box's :func:`_slab_parts` (empties ``parts``)."""
     keys, rows = _delta_rows(parts)
-    del parts
     return Delta(keys, {"A": rows[:, 0:1], "N": rows[:, 1:2], "F": rows[:, 2:3], "O": rows[:, 3:4]})
