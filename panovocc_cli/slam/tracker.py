@@ -52,14 +52,17 @@ frame's pose, ``T_world_first``):
 Every frame pose that an optimisation moves by more than ``revise_trans_m`` or ``revise_rot_deg``
 from the pose last handed out is returned in :attr:`TrackStep.revisions`: the caller sends it to
 its map (``Mapper.revise``). The poses handed out (:meth:`Tracker.committed`) are what the map was
-built with; they differ from the optimiser's by at most those thresholds. Maths only: no files, no
-printing (Open3D's console output is silenced).
+built with; they differ from the optimiser's by at most those thresholds. With ``revise_per_frame`` = k > 0
+a frame carries at most k of them, the largest corrections first, and the others wait for later frames
+(a late loop closure that moves thousands of frames then costs the map k revisions a frame, not one stall;
+the poses handed out in the meantime differ from the optimiser's by more); :meth:`Tracker.finish` hands
+out every one left. Maths only: no files, no printing (Open3D's console output is silenced).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -133,6 +136,8 @@ class SlamParams:
     refine_max_deg: float = 2.0
     revise_trans_m: float = 0.01    # a frame moved further than this by an optimisation is revised in the map
     revise_rot_deg: float = 0.2
+    revise_per_frame: int = 0       # at most this many of those revisions handed out with a frame, the largest
+    #                                 corrections first, the rest later (0: every one at once, as before)
     final_revise_m: float = 0.0005  # after the final refinement: finer (the poses handed out are the refined ones)
     final_revise_deg: float = 0.01
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
@@ -191,6 +196,16 @@ def _yaw(angle: float) -> np.ndarray:
     return T
 
 
+def _correction(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) -> float | None:
+    """None when pose B is within ``trans_m`` and ``rot_deg`` of A (as :func:`_differs`), else how far: the
+    larger of translation / ``trans_m`` and angle / ``rot_deg`` (a revision's rank)."""
+    D = np.linalg.inv(A) @ B
+    t, r = float(np.linalg.norm(D[:3, 3])), _angle_deg(D[:3, :3])
+    if not (t > trans_m or r > rot_deg):
+        return None
+    return max(t / trans_m if trans_m > 0 else np.inf, r / rot_deg if rot_deg > 0 else np.inf)
+
+
 def _differs(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) -> bool:
     D = np.linalg.inv(A) @ B
     return bool(np.linalg.norm(D[:3, 3]) > trans_m or _angle_deg(D[:3, :3]) > rot_deg)
@@ -223,6 +238,7 @@ class Tracker:
         self._edges: list[tuple[int, int, np.ndarray, np.ndarray, bool]] = []  # (source kf, target kf, T_t_s, info, uncertain)
         self._placed: dict[int, tuple[int, np.ndarray]] = {}   # frame id -> (keyframe index, T_kf_frame)
         self._committed: dict[int, np.ndarray] = {}
+        self._pending: deque[int] = deque()  # frames an optimisation moved, not yet handed out (revise_per_frame), largest first
         self.lost: list[int] = []
         self.relocalised: list[int] = []
         self.loops: list[tuple[int, int]] = []
@@ -458,13 +474,15 @@ class Tracker:
             elif urgent:
                 self._optimise()
             if periodic or urgent:
-                revisions = self._revisions(exclude=fid)
+                revisions = self._revisions(exclude=fid, budget=p.revise_per_frame)
             T_world = self.pose(fid)
             if status == TRACKED:
                 status = KEYFRAME
         else:
             self._placed[fid] = (k, T_kf_frame.copy())
             self._ref = k
+        if not revisions and self._pending:  # the corrections left over by an earlier optimisation
+            revisions = self._handed_out(fid, p.revise_per_frame)
         if self._last is not None and self._last[0] == fid - 1:
             self._velocity = np.linalg.inv(self._last[1]) @ T_world
         else:
@@ -635,21 +653,51 @@ class Tracker:
             kf.T_world = T0 @ Pk
         self.optimisations += 1
 
-    def _revisions(self, exclude: int, trans_m: float | None = None, rot_deg: float | None = None) -> list[tuple[int, np.ndarray]]:
+    def _revisions(self, exclude: int, trans_m: float | None = None, rot_deg: float | None = None,
+                   budget: int = 0) -> list[tuple[int, np.ndarray]]:
+        """The placed frames (but ``exclude``) whose pose moved from the one handed out by more than ``trans_m``
+        / ``rot_deg`` (default: ``revise_trans_m`` / ``revise_rot_deg``), in frame order, each now handed out at
+        its new pose. ``budget`` > 0: only that many, the largest corrections first; the others wait in the
+        pending list, handed out a ``budget`` a frame (:meth:`_handed_out`) or by the next scan (every scan
+        lists every frame that differs, so a call without a budget, as :meth:`finish`'s, hands out all)."""
         p = self.params
         trans_m = p.revise_trans_m if trans_m is None else trans_m
         rot_deg = p.revise_rot_deg if rot_deg is None else rot_deg
-        out = []
+        moved = []
         for fid in sorted(self._placed):
             if fid == exclude:
                 continue
             T = self.pose(fid)
-            if _differs(self._committed[fid], T, trans_m, rot_deg):
-                self._committed[fid] = T.copy()
-                out.append((fid, T))
+            c = _correction(self._committed[fid], T, trans_m, rot_deg)
+            if c is not None:
+                moved.append((c, fid, T))
+        self._pending = deque()
+        if budget > 0 and len(moved) > budget:
+            moved.sort(key=lambda m: (-m[0], m[1]))
+            self._pending = deque(fid for _, fid, _ in moved[budget:])
+            moved = sorted(moved[:budget], key=lambda m: m[1])
+        out = []
+        for _, fid, T in moved:
+            self._committed[fid] = T.copy()
+            out.append((fid, T))
         if self._last is not None and self._last[0] in self._placed:
             self._last = (self._last[0], self.pose(self._last[0]))
         return out
+
+    def _handed_out(self, exclude: int, budget: int) -> list[tuple[int, np.ndarray]]:
+        """Up to ``budget`` frames of the pending list (largest correction first, as the last scan ranked them)
+        that still differ from the pose handed out, each now handed out at its current pose (frame order)."""
+        p = self.params
+        out = []
+        while self._pending and len(out) < budget:
+            fid = self._pending.popleft()
+            if fid == exclude or fid not in self._placed:
+                continue
+            T = self.pose(fid)
+            if _differs(self._committed[fid], T, p.revise_trans_m, p.revise_rot_deg):
+                self._committed[fid] = T.copy()
+                out.append((fid, T))
+        return sorted(out, key=lambda r: r[0])
 
     def summary(self) -> dict:
         """Counts of the run so far: keyframes, loop closures, optimisations, refinements, lost and relocalised

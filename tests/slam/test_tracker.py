@@ -11,7 +11,7 @@ from panovocc_cli.evaluation.trajectory import evaluate_trajectory
 from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.slam import LOST, SlamParams, Tracker
 from panovocc_cli.slam.registration import Registration, erp_points
-from panovocc_cli.slam.tracker import LEVEL_FIRST
+from panovocc_cli.slam.tracker import LEVEL_FIRST, _correction
 
 
 def _run(seq, ids, params=None, first=None):
@@ -105,3 +105,33 @@ def test_both_backends_register_two_frames(loop_seq, backend):
     assert np.linalg.norm(r.T_target_source[:3, 3] - truth[:3, 3]) < 0.01
     info = reg.information(a, b, r.T_target_source, 0.2)
     assert info.shape == (6, 6) and np.all(np.linalg.eigvalsh(info) > 0)
+
+
+def test_revisions_a_budget_a_frame_largest_first(loop_seq):
+    """``revise_per_frame``: at most that many revisions come with a frame, the largest corrections first,
+    the rest with later frames; the estimates do not depend on it, and after ``finish`` every frame is
+    handed out within the final thresholds of its estimate either way."""
+    seq = Sequence(loop_seq)
+    eager = dict(loop_optimise_m=0.0, loop_optimise_deg=0.0, revise_trans_m=0.001, revise_rot_deg=0.05)
+    free, steps0 = _run(seq, range(48), SlamParams(**eager), first=seq.poses[0])
+    tight, steps1 = _run(seq, range(48), SlamParams(revise_per_frame=1, **eager), first=seq.poses[0])
+    assert max(len(s.revisions) for s in steps0) > 1  # an optimisation moves several frames at once
+    assert max(len(s.revisions) for s in steps1) == 1
+    # revisions handed out by frames that did not optimise: the backlog, a frame at a time
+    assert sum(len(s.revisions) for s in steps1) > sum(1 for s in steps0 if s.revisions)
+    # the same estimates, bit for bit: revisions are the map's business
+    assert all(np.array_equal(a.T_world, b.T_world) for a, b in zip(free.keyframes, tight.keyframes))
+    assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(steps0, steps1))
+    # the first optimisation that moves several frames: the one revision handed out is its largest correction
+    # (the poses handed out before it are the frames' own, as placed, in both runs)
+    k = next(k for k, s in enumerate(steps0) if len(s.revisions) > 1)
+    assert not any(s.revisions for s in steps0[:k])
+    rank = {f: _correction(steps0[f].T_world_cam, T, eager["revise_trans_m"], eager["revise_rot_deg"])
+            for f, T in steps0[k].revisions}
+    assert [f for f, _ in steps1[k].revisions] == [min(rank, key=lambda f: (-rank[f], f))]
+    p = tight.params
+    for tr in (free, tight):
+        tr.finish()
+        for fid, T in tr.committed().items():
+            D = np.linalg.inv(T) @ tr.pose(fid)
+            assert np.linalg.norm(D[:3, 3]) <= p.final_revise_m + 1e-12
