@@ -148,6 +148,8 @@ class SlamParams:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {OPTIMISERS}, got {self.optimiser!r}")
+        if self.revise_per_frame < 0:
+            raise ValueError(f"revise_per_frame must be >= 0 (0: every revision at once), got {self.revise_per_frame}")
         return self
 
 

@@ -129,6 +129,8 @@ def test_revisions_a_budget_a_frame_largest_first(loop_seq):
     rank = {f: _correction(steps0[f].T_world_cam, T, eager["revise_trans_m"], eager["revise_rot_deg"])
             for f, T in steps0[k].revisions}
     assert [f for f, _ in steps1[k].revisions] == [min(rank, key=lambda f: (-rank[f], f))]
+    with pytest.raises(ValueError, match="revise_per_frame"):
+        SlamParams(revise_per_frame=-1).check()
     p = tight.params
     for tr in (free, tight):
         tr.finish()
