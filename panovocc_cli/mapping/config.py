@@ -197,6 +197,10 @@ class MapConfig:
                                          "--poses-reference's pose of that frame). Default: the first frame, "
                                          "levelled, at the origin.")
     checkpoint_every: int = option(25, min=0, help="Checkpoint the memory every K frames (0 = only at the end).")
+    revise_per_frame: int = option(0, min=0, metavar="K",
+                                   help="With --poses slam: at most K map revisions a frame after a pose-graph "
+                                        "optimisation, the largest corrections first, the rest with later frames "
+                                        "(0 = every one at once); the final refinement revises all that are left.")
     # a range of the sequence's frames (ids stay the sequence's indices); None = every frame
     frames: str | None = option(None, cli_type=str, parse=parse_frames, metavar="A:B", show_default=False,
                                 help="Map only frames A..B-1 of the sequence (A: to its end; A:B,C:D several "
@@ -230,6 +234,8 @@ class MapConfig:
         d = dataclasses.asdict(self)
         if d["frames"] is None:  # a whole-sequence map's config.json as before --frames existed
             del d["frames"]
+        if not d["revise_per_frame"]:  # likewise before --revise-per-frame
+            del d["revise_per_frame"]
         d["format_version"] = FORMAT_VERSION
         return d
 
@@ -242,6 +248,7 @@ class MapConfig:
                        poses_align=str(d.get("poses_align", "none")), poses_reference=d.get("poses_reference"),
                        first_pose=d.get("first_pose"),
                        checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
+                       revise_per_frame=int(d.get("revise_per_frame", 0)),
                        frames=None if d.get("frames") is None else parse_frames(d["frames"]),
                        geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),

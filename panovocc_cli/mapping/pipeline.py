@@ -554,6 +554,9 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if (cfg.poses == POSES_SLAM) != (pose_source is not None):
             raise PanovoccError("--poses slam needs a pose source (panovocc map, or slam.run.run_map_slam)"
                                 if pose_source is None else "a pose source is only used with --poses slam")
+        if cfg.revise_per_frame and cfg.poses != POSES_SLAM:
+            raise PanovoccError("--revise-per-frame spreads the revisions of --poses slam's optimisations; a pose "
+                                "file is not revised while mapping")
         if cfg.first_pose is not None and cfg.poses != POSES_SLAM:
             raise PanovoccError("--first-pose sets the world of --poses slam; a pose file's world is its own (move it "
                                 "into a reference's with --poses-align se3)")

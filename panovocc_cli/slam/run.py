@@ -97,6 +97,8 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     from ..mapping.pipeline import run_map
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
+    if cfg.revise_per_frame:  # --revise-per-frame K
+        params = dataclasses.replace(params or SlamParams(), revise_per_frame=int(cfg.revise_per_frame))
     source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)

@@ -2,7 +2,6 @@
 first frame, so the map is in the reference's world and scores without alignment (issue 22)."""
 
 import json
-import shutil
 
 import numpy as np
 import pytest
@@ -11,22 +10,6 @@ from cli_helpers import run_cli
 from panovocc_cli.evaluation.trajectory import evaluate_trajectory
 from panovocc_cli.geometry.drift import so3_exp
 from panovocc_cli.io.poses import read_poses, read_trajectory, write_poses
-
-N = 12  # frames of the short sequence: half a lap of loop_seq (0.157 m and 15 degrees a frame)
-
-
-@pytest.fixture(scope="module")
-def short_seq(loop_seq, tmp_path_factory):
-    """The first N frames of ``loop_seq`` (its true poses in poses.txt)."""
-    root = tmp_path_factory.mktemp("first_pose") / "seq"
-    for sub in ("rgb", "depth", "semantic"):
-        (root / sub).mkdir(parents=True)
-        for f in sorted((loop_seq / sub).iterdir())[:N]:
-            shutil.copyfile(f, root / sub / f.name)
-    meta = json.loads((loop_seq / "meta.json").read_text())
-    (root / "meta.json").write_text(json.dumps(meta | {"frames": N}))
-    write_poses(root / "poses.txt", read_poses(loop_seq / "poses.txt")[:N])
-    return root
 
 
 def _iou(pred, ref) -> float:
