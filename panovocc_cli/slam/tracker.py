@@ -199,8 +199,8 @@ def _yaw(angle: float) -> np.ndarray:
 
 
 def _correction(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) -> float | None:
-    """None when pose B is within ``trans_m`` and ``rot_deg`` of A (as :func:`_differs`), else how far: the
-    larger of translation / ``trans_m`` and angle / ``rot_deg`` (a revision's rank)."""
+    """None when pose B is within ``trans_m`` and ``rot_deg`` of A (:func:`_differs` is its negation), else how
+    far: the larger of translation / ``trans_m`` and angle / ``rot_deg`` (a revision's rank)."""
     D = np.linalg.inv(A) @ B
     t, r = float(np.linalg.norm(D[:3, 3])), _angle_deg(D[:3, :3])
     if not (t > trans_m or r > rot_deg):
@@ -209,8 +209,7 @@ def _correction(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) ->
 
 
 def _differs(A: np.ndarray, B: np.ndarray, trans_m: float, rot_deg: float) -> bool:
-    D = np.linalg.inv(A) @ B
-    return bool(np.linalg.norm(D[:3, 3]) > trans_m or _angle_deg(D[:3, :3]) > rot_deg)
+    return _correction(A, B, trans_m, rot_deg) is not None
 
 
 class Tracker:
@@ -484,7 +483,7 @@ class Tracker:
             self._placed[fid] = (k, T_kf_frame.copy())
             self._ref = k
         if not revisions and self._pending:  # the corrections left over by an earlier optimisation
-            revisions = self._handed_out(fid, p.revise_per_frame)
+            revisions = self._handed_out(p.revise_per_frame)
         if self._last is not None and self._last[0] == fid - 1:
             self._velocity = np.linalg.inv(self._last[1]) @ T_world
         else:
@@ -686,15 +685,14 @@ class Tracker:
             self._last = (self._last[0], self.pose(self._last[0]))
         return out
 
-    def _handed_out(self, exclude: int, budget: int) -> list[tuple[int, np.ndarray]]:
-        """Up to ``budget`` frames of the pending list (largest correction first, as the last scan ranked them)
-        that still differ from the pose handed out, each now handed out at its current pose (frame order)."""
+    def _handed_out(self, budget: int) -> list[tuple[int, np.ndarray]]:
+        """Up to ``budget`` frames of the pending list (largest correction first, as the last scan ranked them;
+        frames placed before it, never the one being placed) that still differ from the pose handed out, each
+        now handed out at its current pose (frame order)."""
         p = self.params
         out = []
         while self._pending and len(out) < budget:
             fid = self._pending.popleft()
-            if fid == exclude or fid not in self._placed:
-                continue
             T = self.pose(fid)
             if _differs(self._committed[fid], T, p.revise_trans_m, p.revise_rot_deg):
                 self._committed[fid] = T.copy()
