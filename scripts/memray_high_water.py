@@ -4,7 +4,7 @@ space it touches a block at a time (``memory._reserve``), which memray counts as
 capture without those reservations, finds the peak of what stays and prints it grouped by the top three
 frames of the allocating stack (MB). Needs ``pip install memray`` (not a dependency of the toolkit).
 
-    python -m memray run -o CAP.bin -m panovocc_cli map SEQ OUT
+    python -m memray run -o CAP.bin .venv/bin/panovocc map SEQ OUT
     python scripts/memray_high_water.py CAP.bin [--top 25]
 """
 
