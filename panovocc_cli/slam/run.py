@@ -147,7 +147,8 @@ def _write_slam_outputs(out: Path, tracker: Tracker, frames: int, revisions: int
 
 
 def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None = None,
-                   first_pose: str | None = None, poses_reference: str | None = None) -> dict:
+                   first_pose: str | None = None, poses_reference: str | None = None,
+                   frame_times: str | Path | None = None) -> dict:
     """Only the poses: the front end over ``seq``'s depth frames, no map (what a pipeline that maps again
     with aligned poses needs, e.g. the benchmark's SLAM split: it skips the map's integration and revisions).
 
@@ -156,13 +157,19 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
     same file ``map --poses slam [--first-pose ...]`` writes for the same sequence; ``trajectory.tum`` and
     ``slam.json`` as there (without the map's fields). ``first_pose`` and ``poses_reference`` as for the map
     (``--first-pose FILE|reference``, ``--poses-reference``); SEQ/poses.txt is read only as the default
-    reference of ``first_pose="reference"``.
+    reference of ``first_pose="reference"``. ``frame_times``: also write this CSV, one row a frame:
+    ``frame,t_s,track_ms,keyframes,points_bytes,held_bytes,rss_mb`` (seconds since the first frame, the
+    tracker's wall time for the frame, the last frame's including the final refinement; the keyframe store
+    after it, :meth:`.Tracker.memory`; the process's resident memory), for the front end's cost over a long walk.
 
     Returns
     -------
     info : slam.json's content
     """
     import time
+
+    from ..io.atomic import write_text
+    from ..mapping.pipeline import resident_mb
 
     from ..io.poses import write_poses
     from ..io.sequence import Sequence, read_meta
@@ -176,13 +183,19 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     poses, last = first.copy(), first[0].copy() if n else np.eye(4)
-    unplaced, reasons, revisions, t_track = [], {}, 0, 0.0
+    unplaced, reasons, revisions, t_track, rows = [], {}, 0, 0.0, []
+    t_start = time.perf_counter()
     for i in range(n):
         depth = sq.depth(i)
         t0 = time.perf_counter()
         step = tracker.track(i, depth)
         T, moved = finish(tracker, i, step.T_world_cam, step.revisions) if i == n - 1 else (step.T_world_cam, step.revisions)
-        t_track += time.perf_counter() - t0
+        t1 = time.perf_counter()
+        t_track += t1 - t0
+        if frame_times is not None:
+            m = tracker.memory()
+            rows.append(f"{i},{t1 - t_start:.4f},{1e3 * (t1 - t0):.3f},{m['keyframes']},{m['points']},"
+                        f"{m['held_bytes']},{resident_mb():.1f}\n")
         for fid, Tr in moved:
             poses[fid] = Tr
         revisions += len(moved)
@@ -194,6 +207,8 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
         if step.reason:
             reasons[str(i)] = step.reason
     write_poses(out / "poses.txt", poses)
+    if frame_times is not None:
+        write_text(Path(frame_times), "frame,t_s,track_ms,keyframes,points_bytes,held_bytes,rss_mb\n" + "".join(rows))
     return _write_slam_outputs(out, tracker, frames=n, revisions=revisions, unplaced_frames=unplaced,
                                track_ms_per_frame=1e3 * t_track / max(n, 1), lost_reasons=reasons,
                                first_pose=first_pose)

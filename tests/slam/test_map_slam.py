@@ -30,9 +30,17 @@ def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_pat
     # the front end alone (no map) gives the same poses.txt
     from panovocc_cli.slam.run import run_slam_poses
 
-    info = run_slam_poses(seq_dir, tmp_path / "poses_only")
+    info = run_slam_poses(seq_dir, tmp_path / "poses_only", frame_times=tmp_path / "track.csv")
     assert info["placed"] == 48 and info["unplaced_frames"] == []
     assert (tmp_path / "poses_only" / "poses.txt").read_bytes() == (tmp_path / "default" / "poses.txt").read_bytes()
+    # its frame times: a row a frame, time rising, the keyframe store as slam.json states it at the end
+    lines = (tmp_path / "track.csv").read_text().splitlines()
+    assert lines[0] == "frame,t_s,track_ms,keyframes,points_bytes,held_bytes,rss_mb" and len(lines) == 49
+    rows = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    assert rows[:, 0].tolist() == list(range(48)) and np.all(np.diff(rows[:, 1]) > 0) and np.all(rows[:, 2] > 0)
+    store = info["keyframe_store"]
+    assert rows[-1, 3] == store["keyframes"] == info["keyframes"] and rows[-1, 4] == store["points"] > 0
+    assert np.all(np.diff(rows[:, 3]) >= 0) and rows[0, 3] == 1
     # the exactness check wants many revisions: optimise after every loop edge, revise every frame moved 1 mm
     out = tmp_path / "map"
     params = SlamParams(loop_optimise_m=0.0, loop_optimise_deg=0.0, revise_trans_m=0.001, revise_rot_deg=0.05)
