@@ -40,6 +40,7 @@ def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_pat
     assert rows[:, 0].tolist() == list(range(48)) and np.all(np.diff(rows[:, 1]) > 0) and np.all(rows[:, 2] > 0)
     store = info["keyframe_store"]
     assert rows[-1, 3] == store["keyframes"] == info["keyframes"] and rows[-1, 4] == store["points"] > 0
+    assert rows[-1, 5] == store["held_bytes"] > 0
     assert np.all(np.diff(rows[:, 3]) >= 0) and rows[0, 3] == 1
     # the exactness check wants many revisions: optimise after every loop edge, revise every frame moved 1 mm
     out = tmp_path / "map"
