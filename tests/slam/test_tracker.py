@@ -137,3 +137,22 @@ def test_revisions_a_budget_a_frame_largest_first(loop_seq):
         for fid, T in tr.committed().items():
             D = np.linalg.inv(T) @ tr.pose(fid)
             assert np.linalg.norm(D[:3, 3]) <= p.final_revise_m + 1e-12
+
+
+def test_loop_linked_skips_places_already_joined(loop_seq):
+    """``loop_linked`` = L: a candidate within L keyframes of a keyframe that one of the last L keyframes (or the
+    new one) is already joined to by a loop edge is not verified; fewer registrations, the loop still reduces
+    the error as much."""
+    seq = Sequence(loop_seq)
+    eager = dict(loop_optimise_m=0.0, loop_optimise_deg=0.0, revise_trans_m=0.001, revise_rot_deg=0.05)
+    every, _ = _run(seq, range(48), SlamParams(**eager), first=seq.poses[0])
+    L = 2
+    linked, _ = _run(seq, range(48), SlamParams(loop_linked=L, **eager), first=seq.poses[0])
+    assert every.loops_skipped == 0 and linked.loops_skipped > 0
+    assert 0 < len(linked.loops) < len(every.loops)
+    ends = [(s_, t) for s_, t, _, _, uncertain in linked._edges if uncertain]  # keyframe indices, in order found
+    for n, (a, b) in enumerate(ends):  # no earlier loop edge joined a's last L keyframes to b's neighbourhood
+        assert not any(a - L <= a2 <= a and abs(b2 - b) <= L for a2, b2 in ends[:n]), (a, b)
+    without, _ = _run(seq, range(48), SlamParams(loop_candidates=0, **eager), first=seq.poses[0])
+    assert _ate(linked, seq).ate["rmse"] < 0.75 * _ate(without, seq).ate["rmse"]
+    assert linked.summary()["loops_skipped"] == linked.loops_skipped
