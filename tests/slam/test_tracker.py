@@ -156,3 +156,33 @@ def test_loop_linked_skips_places_already_joined(loop_seq):
     without, _ = _run(seq, range(48), SlamParams(loop_candidates=0, **eager), first=seq.poses[0])
     assert _ate(linked, seq).ate["rmse"] < 0.75 * _ate(without, seq).ate["rmse"]
     assert linked.summary()["loops_skipped"] == linked.loops_skipped
+
+
+@pytest.mark.parametrize("check_fitness, promoted", [(0.79, False), (1.0, True)])
+def test_previous_frame_check_wins_only_when_it_fits_as_well(loop_seq, check_fitness, promoted):
+    """The consistency check against the previous frame replaces the keyframe's registration (and promotes
+    the previous frame) when the two disagree, unless the check fits worse: after a fast turn the short
+    baseline's registration can end in a wrong minimum (the building's frame 6,126: 24 degrees off, fitness
+    0.79 against the keyframe's 1.00), and taking it lost the heading for good."""
+    import dataclasses
+
+    from panovocc_cli.geometry.drift import so3_exp
+
+    seq = Sequence(loop_seq)
+    tr, steps = _run(seq, range(2), first=seq.poses[0])
+    assert [s.status for s in steps] == ["keyframe", "tracked"]  # frame 1 is placed on keyframe 0
+    register = tr._register
+
+    def wrong_check(target, source, init):  # the previous frame's registration: 20 degrees off, this fitness
+        r = register(target, source, init)
+        if target is not tr._prev[1]:
+            return r
+        T = r.T_target_source.copy()
+        T[:3, :3] = T[:3, :3] @ so3_exp([0.0, 0.0, np.deg2rad(20.0)])
+        return dataclasses.replace(r, T_target_source=T, fitness=check_fitness)
+
+    tr._register = wrong_check
+    step = tr.track(2, seq.depth(2))
+    assert (tr.keyframes[1].frame_id == 1) == promoted  # the previous frame became a keyframe
+    err = np.rad2deg(np.arccos(np.clip((np.trace(seq.poses[2][:3, :3].T @ step.T_world_cam[:3, :3]) - 1) / 2, -1, 1)))
+    assert (err > 10.0) == promoted, err  # kept: the keyframe's registration, right within a degree
