@@ -49,7 +49,9 @@ def erp_points(depth: np.ndarray, rays: np.ndarray, stride: int, min_range: floa
 class Cloud:
     """A frame's cloud prepared for registration (downsampled, with the backend's structures).
 
-    points : (n, 3) float64, metres, camera frame, after downsampling
+    points : (n, 3) float32, metres, camera frame, after downsampling: the registration structures are
+        built from these values (widened to float64), so a compacted cloud is restored to the same bytes
+        at 12 bytes a point held (the keyframe store)
     """
 
     points: np.ndarray
@@ -85,7 +87,7 @@ class Cloud:
         if self._o3d is None:
             import open3d as o3d
 
-            self._o3d = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+            self._o3d = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points.astype(np.float64)))
         return self._o3d
 
 
@@ -116,23 +118,24 @@ class Registration:
         self.backend, self.voxel_m, self.max_iterations, self.threads = backend, float(voxel_m), int(max_iterations), int(threads)
 
     def prepare(self, points_cam: np.ndarray) -> Cloud:
-        """Downsample ``points_cam`` (n, 3) float64 metres and build what :meth:`align` needs."""
+        """Downsample ``points_cam`` (n, 3) float64 metres (kept as float32) and build what :meth:`align`
+        needs from the kept points (:meth:`restore`)."""
         pts = np.ascontiguousarray(points_cam, np.float64)
         if self.backend == "small_gicp":
             import small_gicp
 
             if len(pts) == 0:
-                return Cloud(np.zeros((0, 3)))
-            cloud, tree = small_gicp.preprocess_points(pts, downsampling_resolution=self.voxel_m, num_neighbors=NEIGHBORS,
-                                                       num_threads=self.threads)
-            return Cloud(np.asarray(cloud.points())[:, :3].copy(), (cloud, tree))
-        import open3d as o3d
+                return Cloud(np.zeros((0, 3), np.float32))
+            down = small_gicp.voxelgrid_sampling(pts, self.voxel_m, num_threads=self.threads)
+            cloud = Cloud(np.asarray(down.points())[:, :3].astype(np.float32))
+        else:
+            import open3d as o3d
 
-        with open3d_threads(self.threads):
-            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(self.voxel_m)
-            if len(pc.points):
-                pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * self.voxel_m, max_nn=20))
-        return Cloud(np.asarray(pc.points).copy(), pc, pc)
+            with open3d_threads(self.threads):
+                pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(self.voxel_m)
+            cloud = Cloud(np.asarray(pc.points).astype(np.float32))
+        self.restore(cloud)
+        return cloud
 
     def restore(self, cloud: Cloud) -> None:
         """Rebuild the structures of a compacted ``cloud`` from its (already downsampled) points: the same
@@ -142,7 +145,7 @@ class Registration:
         if self.backend == "small_gicp":
             import small_gicp
 
-            pc = small_gicp.PointCloud(cloud.points)
+            pc = small_gicp.PointCloud(cloud.points.astype(np.float64))
             tree = small_gicp.KdTree(pc, num_threads=self.threads)
             small_gicp.estimate_covariances(pc, tree, num_neighbors=NEIGHBORS, num_threads=self.threads)
             cloud.handle = (pc, tree)
@@ -150,7 +153,7 @@ class Registration:
         import open3d as o3d
 
         with open3d_threads(self.threads):
-            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points.astype(np.float64)))
             pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * self.voxel_m, max_nn=20))
         cloud.handle = cloud._o3d = pc
 
