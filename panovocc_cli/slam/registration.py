@@ -57,30 +57,21 @@ class Cloud:
     points: np.ndarray
     handle: object = field(repr=False, default=None)  # backend data (small_gicp cloud + tree, or Open3D cloud)
     _o3d: object = field(repr=False, default=None)    # Open3D cloud for information matrices (lazy)
-    _structure: tuple = field(repr=False, default=(None, 0))  # (handle, its structure_bytes), computed once
 
     def __len__(self) -> int:
         return len(self.points)
 
     def structure_bytes(self) -> int:
-        """Bytes of the registration structures' arrays (small_gicp: its points and covariances; Open3D: points
-        and normals; KD-trees not counted); 0 when compacted. Counted once per handle (reading the backend's
-        arrays copies them)."""
+        """Bytes of the registration structures' arrays (small_gicp: its points (n, 4) and covariances (n, 4, 4),
+        Open3D: points and normals (n, 3), all float64; KD-trees not counted); 0 when compacted. Counted from
+        the points held (reading the backend's arrays copies them; tests/slam/test_tracker.py compares)."""
         if self.handle is None:
             return 0
-        if self._structure[0] is not self.handle:
-            if isinstance(self.handle, tuple):
-                pc = self.handle[0]
-                nbytes = np.asarray(pc.points()).nbytes + np.asarray(pc.covs()).nbytes
-            else:
-                nbytes = np.asarray(self.handle.points).nbytes + np.asarray(self.handle.normals).nbytes
-            self._structure = (self.handle, int(nbytes))
-        return self._structure[1]
+        return len(self) * (8 * (4 + 16) if isinstance(self.handle, tuple) else 8 * (3 + 3))
 
     def compact(self) -> None:
         """Drop the registration structures, keep the points (:meth:`Registration.restore` rebuilds them)."""
         self.handle = self._o3d = None
-        self._structure = (None, 0)
 
     def o3d(self):
         """The cloud as an ``open3d.geometry.PointCloud`` (built once)."""

@@ -169,11 +169,9 @@ def run_slam_poses(seq: str | Path, out: str | Path, params: SlamParams | None =
     import time
 
     from ..io.atomic import write_text
-    from ..mapping.pipeline import resident_mb
-
     from ..io.poses import write_poses
     from ..io.sequence import Sequence, read_meta
-    from ..mapping.pipeline import slam_first_poses
+    from ..mapping.pipeline import resident_mb, slam_first_poses
 
     n = read_meta(seq).frames
     first = slam_first_poses(MapConfig(seq=str(seq), out=str(out), poses=POSES_SLAM, first_pose=first_pose,

@@ -11,7 +11,7 @@ from panovocc_cli.evaluation.trajectory import evaluate_trajectory
 from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.slam import LOST, SlamParams, Tracker
 from panovocc_cli.slam.registration import Registration, erp_points
-from panovocc_cli.slam.tracker import LEVEL_FIRST, _correction
+from panovocc_cli.slam.tracker import LEVEL_FIRST, _angle_deg, _correction
 
 
 def _run(seq, ids, params=None, first=None):
@@ -105,6 +105,12 @@ def test_both_backends_register_two_frames(loop_seq, backend):
     assert np.linalg.norm(r.T_target_source[:3, 3] - truth[:3, 3]) < 0.01
     info = reg.information(a, b, r.T_target_source, 0.2)
     assert info.shape == (6, 6) and np.all(np.linalg.eigvalsh(info) > 0)
+    # the structures' bytes (Tracker.memory), counted from the points, are those of the backend's arrays
+    h = a.handle
+    arrays = (h[0].points(), h[0].covs()) if backend == "small_gicp" else (h.points, h.normals)
+    assert a.structure_bytes() == sum(np.asarray(x).nbytes for x in arrays) > 0
+    a.compact()
+    assert a.structure_bytes() == 0
 
 
 def test_revisions_a_budget_a_frame_largest_first(loop_seq):
@@ -184,5 +190,5 @@ def test_previous_frame_check_wins_only_when_it_fits_as_well(loop_seq, check_fit
     tr._register = wrong_check
     step = tr.track(2, seq.depth(2))
     assert (tr.keyframes[1].frame_id == 1) == promoted  # the previous frame became a keyframe
-    err = np.rad2deg(np.arccos(np.clip((np.trace(seq.poses[2][:3, :3].T @ step.T_world_cam[:3, :3]) - 1) / 2, -1, 1)))
+    err = _angle_deg(seq.poses[2][:3, :3].T @ step.T_world_cam[:3, :3])
     assert (err > 10.0) == promoted, err  # kept: the keyframe's registration, right within a degree
