@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from panovocc_cli.benchmark.scale import early_late
 from panovocc_cli.mapping.config import MapConfig, parse_frames
 from panovocc_cli.slam import SlamParams
 from panovocc_cli.slam.run import run_map_slam
@@ -48,7 +49,7 @@ def main() -> None:
         wall = time.perf_counter() - t0
         ms = frame_ms(times)
         n = len(ms)
-        early, late = float(np.median(ms[n // 10:n // 5])), float(np.median(ms[n - n // 10:]))
+        early, late = (float(np.median(ms[w])) for w in early_late(n))
         row = {"budget": k, "wall_s": round(wall, 1), "frames": n, "ms_early": round(early, 1),
                "ms_late": round(late, 1), "late_over_early": round(late / early, 3), "ms_mean": round(float(ms.mean()), 1),
                "ms_max": round(float(ms.max()), 1), "revisions": s["slam"]["revisions"],

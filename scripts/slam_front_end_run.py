@@ -37,6 +37,7 @@ def main() -> None:
     ap.add_argument("--floor-height", type=float, default=3.2, help="metres between floors (the building's)")
     a = ap.parse_args()
     setup()
+    from panovocc_cli.benchmark.scale import early_late
     from panovocc_cli.evaluation.trajectory import evaluate_trajectory
     from panovocc_cli.io.poses import read_poses
     from panovocc_cli.slam.run import run_slam_poses
@@ -53,7 +54,7 @@ def main() -> None:
     n = len(ms)
     online = ms[:-1]  # the last frame holds the final refinement
     tenth = [float(np.median(online[k * n // 10:(k + 1) * n // 10])) for k in range(10)]
-    early, late = float(np.median(online[n // 10:n // 5])), float(np.median(online[n - n // 10:]))
+    early, late = (float(np.median(online[w])) for w in early_late(n))  # the map's windows, over the n frames
     at = [rows[min((k + 1) * n // 10, n) - 1] for k in range(10)]
     ref = read_poses(a.seq / "poses.txt")
     est = read_poses(out / "poses.txt")

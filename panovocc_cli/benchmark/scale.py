@@ -61,6 +61,13 @@ def timed(cmd: list, log: Path) -> dict:
     return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_rss_bytes": int(usage.ru_maxrss) * 1024}
 
 
+def early_late(n: int) -> tuple[slice, slice]:
+    """The windows issue 21's and 22's per-frame goals compare, over a run of ``n`` frames: frames 10-20 %
+    and the last 10 %, each at least one frame long."""
+    a = int(0.1 * n)
+    return slice(a, max(int(0.2 * n), a + 1)), slice(n - max(n // 10, 1), n)
+
+
 def frame_costs(csv_path: Path) -> dict:
     """Per-frame wall times from a ``map --frame-times`` CSV: early (10-20 %) and late (last 10 %) medians,
     the checkpoint cost, the resident memory after the first frame and once the frame pipeline is full (after
@@ -73,12 +80,11 @@ def frame_costs(csv_path: Path) -> dict:
     rss = np.array([float(r["rss_mb"]) for r in rows])
     dt = np.diff(t, prepend=0.0)  # frame k's wall: from the end of frame k-1 (the first: from the loop's start)
     n = len(dt)
-    early = dt[int(0.1 * n):max(int(0.2 * n), int(0.1 * n) + 1)]
-    late = dt[n - max(n // 10, 1):]
+    sl_early, sl_late = early_late(n)
+    early, late = dt[sl_early], dt[sl_late]
     # a checkpoint's commit runs on the writer thread: its cost lands on the frame after it
     after = np.zeros(n, bool)
     after[1:] = ck[:-1]
-    sl_early, sl_late = slice(int(0.1 * n), max(int(0.2 * n), int(0.1 * n) + 1)), slice(n - max(n // 10, 1), n)
     return {"frames": n, "ms_early": 1e3 * float(np.median(early)), "ms_late": 1e3 * float(np.median(late)),
             "cpu_ms_early": 1e3 * float(np.median(cpu[sl_early])), "cpu_ms_late": 1e3 * float(np.median(cpu[sl_late])),
             "late_over_early": float(np.median(late) / np.median(early)),

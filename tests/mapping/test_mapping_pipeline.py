@@ -396,6 +396,21 @@ def test_frame_times_csv_and_the_scale_benchmarks_figures(room_seq, tmp_path):
     np.testing.assert_allclose(np.linalg.norm(Q[6, :3, 3] - P[6, :3, 3]), 0.01, atol=1e-9)  # the pivot: 1 cm
 
 
+def test_early_and_late_windows_of_a_run():
+    """The windows the per-frame goals compare (map's frame costs, the SLAM scripts): frames 10-20 % and the
+    last 10 %, never empty, the building's 7,661 frames as the scripts' n // 10 and n // 5 cut them."""
+    from panovocc_cli.benchmark.scale import early_late
+
+    e, l = early_late(7661)
+    assert (e.start, e.stop, l.start, l.stop) == (766, 1532, 7661 - 766, 7661)
+    for n in (1, 2, 5, 9, 10, 11, 100):
+        e, l = early_late(n)
+        x = np.arange(n)
+        assert len(x[e]) >= 1 and len(x[l]) >= 1, n
+        assert x[l][-1] == n - 1 and x[e][0] == int(0.1 * n)
+    assert len(np.arange(100)[early_late(100)[0]]) == 10 and len(np.arange(100)[early_late(100)[1]]) == 10
+
+
 def test_o_counts_every_frame_that_saw_surface_and_older_maps_keep_their_rule(room_seq, tmp_path):
     """Issue 26, 'one stray hit is occupied forever': the frequency rule N / max(O, 1) let a voxel with a
     measurement and no valid comparison of its centre (O = 0) count as always seen surface. A frame that
