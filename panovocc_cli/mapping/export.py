@@ -310,11 +310,13 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
     ``pieces()`` yields ``(keys, channels, ids)`` in key order: sorted keys (n,), their channels (a dict,
     or a reader with ``at(positions, names)``) and an id per voxel that the caller's reader of the occupied
     voxels understands (None: the position in the concatenated keys). Called twice (the grid's box, then
-    the grid), each piece in slices of :data:`CHUNK` voxels: the temporaries beside the grid are a slice's
-    and the occupied voxels' keys, ids and g (the states and g are the same as one :func:`decide` call's).
+    the grid), each piece in slices of :data:`CHUNK` voxels: the temporaries beside the grid are a slice's,
+    the occupied voxels' keys, ids and g, and the states the first pass decided (2 bits a voxel, packed;
+    the second pass reads only the keys). The states and g are the same as one :func:`decide` call's.
     ``lookup``: the memory's geometry channels at any keys (:func:`thin_spill`; needed with ``p.spill > 0``).
     """
     g_occ, occ_keys, occ_ids = [], [], []
+    states = []  # each slice's occupied and free flags, packed (2 bits a voxel): the second pass decides nothing
     i0 = np.full(3, np.iinfo(np.int64).max, np.int64)
     i1 = np.full(3, np.iinfo(np.int64).min, np.int64)
     offset = 0
@@ -326,10 +328,13 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
             g_occ.append(g[occ])
             occ_keys.append(keys[sl][occ])
             occ_ids.append(np.flatnonzero(occ) + (offset + sl.start) if ids is None else ids[sl][occ])
-            if occ.any() or free.any():
-                idx = unpack_keys(keys[sl][occ | free])
-                i0, i1 = np.minimum(i0, idx.min(axis=0)), np.maximum(i1, idx.max(axis=0))
-            del c, occ, free, g
+            states.append((np.packbits(occ), np.packbits(free)))
+            kept = keys[sl][occ | free]
+            if len(kept):  # the box: each axis's index apart (1-D reductions, no (n, 3) array)
+                ijk = unpack_index(kept)
+                i0 = np.minimum(i0, [v.min() for v in ijk])
+                i1 = np.maximum(i1, [v.max() for v in ijk])
+            del c, occ, free, g, kept
         offset += len(keys)
     cat = (lambda parts, dt: np.concatenate(parts) if parts else np.zeros(0, dt))
     g_occ, occ_keys, occ_ids = cat(g_occ, np.float64), cat(occ_keys, np.int64), cat(occ_ids, np.int64)
@@ -338,16 +343,18 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
         return (Grid(labels, index_to_center(np.zeros(3, np.int64), voxel_size), voxel_size, list(class_names)),
                 occ_keys, occ_ids, g_occ)
     labels = np.full(tuple(i1 - i0 + 1), UNKNOWN, np.uint8)
-    for keys, channels, _ in pieces():
-        names = decision_names(p, channels)
+    st = iter(states)
+    for keys, _, _ in pieces():  # the same pieces and slices: the first pass's flags, in order
         for sl in _slices(len(keys)):
-            c = _geometry(channels, sl, names)
-            occ, free, _ = decide(keys[sl], c, p, lookup)
+            n = sl.stop - sl.start
+            po, pf = next(st)
+            occ, free = np.unpackbits(po, count=n).view(bool), np.unpackbits(pf, count=n).view(bool)
             kept = occ | free
-            local = unpack_keys(keys[sl][kept]) - i0
-            labels[local[:, 0], local[:, 1], local[:, 2]] = np.where(occ[kept], OCCUPIED_UNKNOWN_CLASS,
-                                                                     EMPTY).astype(np.uint8)
-            del c, occ, free
+            i, j, k = unpack_index(keys[sl][kept])
+            labels[i - i0[0], j - i0[1], k - i0[2]] = np.where(occ[kept], OCCUPIED_UNKNOWN_CLASS, EMPTY).astype(np.uint8)
+            del occ, free
+    if next(st, None) is not None:
+        raise RuntimeError("_grid_of_pieces: the pieces changed between its two passes")
     grid = Grid(labels, index_to_center(i0, voxel_size), voxel_size, list(class_names))
     return grid, occ_keys, occ_ids, g_occ
 
