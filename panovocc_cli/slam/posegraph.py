@@ -109,14 +109,19 @@ class IncrementalGraph:
     max_corr_m : the robust kernel's distance (module docstring)
     relinearize : iSAM2's relinearisation threshold (radians and metres of a variable's update)
     iterations : at most this many further iSAM2 updates in :meth:`estimate` (until none relinearises)
+    skip : the updates of :meth:`add` consider relinearising every ``skip``-th time (iSAM2's
+        ``relinearizeSkip``); :meth:`estimate`'s updates always do. Each relinearisation re-eliminates the
+        cliques of every variable past the threshold, which after a few loop closures is most of the graph:
+        on the building's first 1,300 keyframes an add took a median 8-14 ms late in the walk with 1 and
+        0.3 ms with 10, the estimates within 0.1 mm of each other (0.6 um at the end)
     """
 
-    def __init__(self, max_corr_m: float, relinearize: float = 1e-4, iterations: int = 10):
+    def __init__(self, max_corr_m: float, relinearize: float = 1e-4, iterations: int = 10, skip: int = 10):
         import gtsam
 
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize)
-        params.relinearizeSkip = 1
+        params.relinearizeSkip = max(int(skip), 1)
         self.isam = gtsam.ISAM2(params)
         self.max_corr_m, self.iterations = float(max_corr_m), int(iterations)
         self.nodes = 0
@@ -139,11 +144,12 @@ class IncrementalGraph:
 
     def estimate(self, converge: bool = True) -> np.ndarray:
         """(nodes, 4, 4) current estimate relative to node 0; ``converge``: first further iSAM2 updates (at most
-        ``iterations``) until no variable is relinearised (a loop closure's large correction needs several
-        Gauss-Newton steps; one update takes one)."""
+        ``iterations``, each relinearising whatever is past the threshold whatever ``skip``) until no variable
+        is relinearised (a loop closure's large correction needs several Gauss-Newton steps; one update takes
+        one)."""
         if converge:
             for _ in range(self.iterations):
-                if self.isam.update().getVariablesRelinearized() == 0:
+                if self.isam.update(force_relinearize=True).getVariablesRelinearized() == 0:
                     break
         return _anchored(self.isam.calculateEstimate(), self.nodes)
 

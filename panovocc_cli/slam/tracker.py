@@ -92,6 +92,7 @@ class SlamParams:
     optimiser: str = "isam2"        # pose graph: GTSAM iSAM2 (incremental) or "open3d" (whole graph each time)
     isam_relinearize: float = 1e-4  # iSAM2: relinearise a variable whose update exceeds this (rad, m; 1e-3: 2e-6 from LM)
     isam_iterations: int = 10       # iSAM2: at most this many further updates when the poses are read back
+    isam_skip: int = 10             # iSAM2: a keyframe's update considers relinearising every this many (the read-back's always)
     voxel_m: float = 0.1
     stride: int = 0                 # pixel stride of the point cloud; 0 = max(1, W // 256)
     min_range_m: float = 0.2
@@ -639,7 +640,7 @@ class Tracker:
         if p.optimiser != "isam2":
             return
         if self._graph is None:
-            self._graph = IncrementalGraph(p.loop_max_corr_m, p.isam_relinearize, p.isam_iterations)
+            self._graph = IncrementalGraph(p.loop_max_corr_m, p.isam_relinearize, p.isam_iterations, p.isam_skip)
             self._synced = 0
         T0_inv = np.linalg.inv(self.keyframes[0].T_world)
         new = [T0_inv @ kf.T_world for kf in self.keyframes[self._graph.nodes:]]
