@@ -347,7 +347,9 @@ def _grid_of_pieces(pieces, voxel_size: float, p: OccupancyParams, class_names=(
     for keys, _, _ in pieces():  # the same pieces and slices: the first pass's flags, in order
         for sl in _slices(len(keys)):
             n = sl.stop - sl.start
-            po, pf = next(st)
+            po, pf = next(st, (None, None))
+            if po is None or len(po) != (n + 7) // 8:
+                raise RuntimeError("_grid_of_pieces: the pieces changed between its two passes")
             occ, free = np.unpackbits(po, count=n).view(bool), np.unpackbits(pf, count=n).view(bool)
             kept = occ | free
             i, j, k = unpack_index(keys[sl][kept])
