@@ -1,8 +1,8 @@
 """Where the SLAM front end's time goes over a long walk (docs/slam.md, "The building run"): runs the tracker
 alone (no map) over the first N frames of SEQ, starting at the sequence's first pose, and prints one JSON line
 every 100 frames: wall ms a frame, and for those 100 frames the seconds and calls of loop verification
-(``_close_loops``, ``_loop_candidates``), registration (``align``, ``restore``, ``information``) and pose-graph
-optimisation (``_optimise``), loop candidates and loops found, and the map frames the tracker hands out to be
+(``_close_loops``, ``_loop_candidates``), registration (``align``, ``restore``, ``information``), the pose
+graph's update a keyframe (``_sync``: iSAM2) and its optimisation (``_optimise``), loop candidates and loops found, and the map frames the tracker hands out to be
 revised (``revised``: what ``map --poses slam`` then re-integrates; ``revise_events``: the frames that hand any).
 
     python scripts/slam_tracker_profile.py SEQ N
@@ -44,6 +44,7 @@ def main() -> None:
     timed(tr.reg, "restore", "restore")
     timed(tr.reg, "align", "align")
     timed(tr.reg, "information", "info")
+    timed(tr, "_sync", "isam_update")
     timed(tr, "_optimise", "optimise")
     timed(tr, "_loop_candidates", "candidates", lambda r: stats.__setitem__("candidate_total", stats["candidate_total"] + len(r)))
     timed(tr, "_close_loops", "close_loops", lambda r: stats.__setitem__("loops_found", stats["loops_found"] + len(r[0])))
