@@ -12,7 +12,9 @@ WORK/track.csv (skipped when both exist), then one JSON object of the front end'
 * ATE RMSE / max of the poses handed out (every frame's, WORK/slam/poses.txt) against SEQ/poses.txt,
   without alignment (the SLAM world is the reference's) and SE(3)-aligned (evo's protocol).
 
-    python scripts/slam_front_end_run.py SEQ WORK [--floor-height 3.2]
+    python scripts/slam_front_end_run.py SEQ WORK [--floor-height 3.2] [--params JSON]
+
+``--params``: :class:`panovocc_cli.slam.SlamParams` fields other than the defaults (``'{"loop_linked": 3}'``).
 
 Then the map from those poses, scored against the true-pose map (the commands docs/slam.md lists).
 """
@@ -35,18 +37,20 @@ def main() -> None:
     ap.add_argument("seq", type=Path)
     ap.add_argument("work", type=Path)
     ap.add_argument("--floor-height", type=float, default=3.2, help="metres between floors (the building's)")
+    ap.add_argument("--params", default="{}", help="SlamParams fields as JSON (default: the defaults)")
     a = ap.parse_args()
     setup()
     from panovocc_cli.benchmark.scale import early_late
     from panovocc_cli.evaluation.trajectory import evaluate_trajectory
     from panovocc_cli.io.poses import read_poses
+    from panovocc_cli.slam import SlamParams
     from panovocc_cli.slam.run import run_slam_poses
 
     out, times = a.work / "slam", a.work / "track.csv"
     wall = None
     if not ((out / "slam.json").is_file() and times.is_file()):
         t0 = time.perf_counter()
-        run_slam_poses(a.seq, out, first_pose="reference", frame_times=times)
+        run_slam_poses(a.seq, out, SlamParams(**json.loads(a.params)), first_pose="reference", frame_times=times)
         wall = time.perf_counter() - t0
     info = json.loads((out / "slam.json").read_text())
     rows = list(csv.DictReader(open(times)))

@@ -5,7 +5,9 @@ every 100 frames: wall ms a frame, and for those 100 frames the seconds and call
 graph's update a keyframe (``_sync``: iSAM2) and its optimisation (``_optimise``), loop candidates and loops found, and the map frames the tracker hands out to be
 revised (``revised``: what ``map --poses slam`` then re-integrates; ``revise_events``: the frames that hand any).
 
-    python scripts/slam_tracker_profile.py SEQ N
+    python scripts/slam_tracker_profile.py SEQ N [NAME=VALUE ...]
+
+``NAME=VALUE``: :class:`panovocc_cli.slam.SlamParams` fields other than the defaults (``loop_linked=3``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,17 @@ def main() -> None:
 
     seq = Sequence(sys.argv[1])
     n = int(sys.argv[2])
-    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(), T_world_first=seq.poses[0])
+    import dataclasses
+
+    types = {f.name: f.type for f in dataclasses.fields(SlamParams)}
+    overrides = {}
+    for arg in sys.argv[3:]:
+        name, _, value = arg.partition("=")
+        if name not in types:
+            sys.exit(f"{arg}: expected NAME=VALUE with NAME a SlamParams field")
+        kind = {"int": int, "float": float, "bool": lambda v: v.lower() in ("1", "true", "yes")}.get(str(types[name]), str)
+        overrides[name] = kind(value)
+    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**overrides), T_world_first=seq.poses[0])
     stats = collections.defaultdict(float)
 
     def timed(obj, name, key, count=None):

@@ -25,9 +25,12 @@ frame's pose, ``T_world_first``):
    keyframes are joined by an odometry edge (the registration, with Open3D's information matrix);
    each keyframe keeps its path length along those edges.
 4. **Loop closure.** Two keyframes a path length L apart are uncertain relative to each other by
-   sigma = max(``odom_min_sigma_m``, ``odom_sigma_per_m`` L) (and likewise in degrees). A new keyframe is
+   sigma = max(``odom_min_sigma_m``, ``odom_sigma_per_m`` L) (and likewise in degrees), and along the
+   up axis by max(``odom_min_sigma_m``, ``odom_sigma_up_per_m`` L): a panorama sees floor and ceiling, which
+   hold the height (measured: under 3e-5 m / m over the building's 1.5 km). A new keyframe is
    compared with older keyframes (at least ``loop_min_gap`` keyframes back) within ``loop_radius_m``
-   plus ``loop_sigmas`` sigmas of it (nearest first, at most ``loop_candidates``); a candidate is
+   plus ``loop_sigmas`` sigmas of it, and as close along the up axis with the up sigma (the two cameras'
+   mean up, -y: a storey above or below is no candidate) (nearest first, at most ``loop_candidates``); a candidate is
    verified by registration from the current estimate and accepted at fitness >= ``loop_fitness``
    (``loop_max_corr_m``) when its correction of the estimate lies within ``loop_sigmas`` sigmas.
    Accepted candidates become uncertain edges. With ``loop_linked`` = L > 0 a candidate is skipped unverified
@@ -120,6 +123,8 @@ class SlamParams:
     loop_max_corr_m: float = 0.1   # loop verification, edge information, relocalisation scores (0.2: ATE 12.5 -> 8.7 mm, house 0)
     odom_sigma_per_m: float = 0.02  # odometry drift (1 sigma) per metre travelled: translation, m / m,
     odom_sigma_deg_per_m: float = 0.5   # and rotation, degrees / m
+    odom_sigma_up_per_m: float = 3e-4  # and along the cameras' up axis, m / m (floor and ceiling hold the height:
+    #                                 a loop candidate a storey above or below is out of reach; 0 = as translation)
     odom_min_sigma_m: float = 0.05  # floors of the relative uncertainty of two keyframes
     odom_min_sigma_deg: float = 2.0
     loop_sigmas: float = 3.0        # a loop's correction must lie within this many sigmas of the odometry
@@ -154,6 +159,8 @@ class SlamParams:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {OPTIMISERS}, got {self.optimiser!r}")
+        if self.odom_sigma_up_per_m < 0:
+            raise ValueError(f"odom_sigma_up_per_m must be >= 0 (0: as odom_sigma_per_m), got {self.odom_sigma_up_per_m}")
         if self.revise_per_frame < 0:
             raise ValueError(f"revise_per_frame must be >= 0 (0: every revision at once), got {self.revise_per_frame}")
         return self
@@ -254,6 +261,7 @@ class Tracker:
         self.optimisations = 0
         self._graph: IncrementalGraph | None = None  # iSAM2's graph (optimiser "isam2"), rebuilt after a refinement
         self._synced = 0  # edges of self._edges already in it
+        self._arrays: tuple | None = None  # (optimisations, positions, up axes, path lengths): _keyframe_arrays
         self.refinements = 0
         self._ref = 0
         self._last: tuple[int, np.ndarray] | None = None
@@ -513,28 +521,55 @@ class Tracker:
 
     def _loop_candidates(self, new: int, index: bool = True) -> list[int]:
         """Loop candidates of keyframe ``new`` (:meth:`_close_loops`), nearest first: keyframes at least
-        ``loop_min_gap`` back within ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas, at most
-        ``loop_candidates``. ``index``: found by a KD-tree over the keyframe positions within the largest such
-        radius (that of the first keyframe, furthest along the path), then the exact test; else by a scan of
-        every keyframe (the same list: tested)."""
+        ``loop_min_gap`` back within ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas, and as close along
+        the up axis with the up sigma (``odom_sigma_up_per_m``), at most ``loop_candidates``. ``index``: found by a
+        KD-tree over the keyframe positions within the largest such radius (that of the first keyframe, furthest
+        along the path), then the exact test; else the exact test of every keyframe (the same list: tested).
+        The test is vectorised over the keyframes' positions, up axes and path lengths, kept in arrays between
+        optimisations (:meth:`_keyframe_arrays`): a keyframe late in a long walk costs no Python loop over
+        the thousands of keyframes within that radius."""
         p = self.params
         n_old = max(0, new - p.loop_min_gap)
         if n_old == 0 or p.loop_candidates <= 0:
             return []
-        here = self.keyframes[new].T_world[:3, 3]
+        pos, up, odo = self._keyframe_arrays()
+        here = pos[new]
         if index:
             from scipy.spatial import cKDTree
 
-            old = self.keyframes[:n_old]
-            odo = np.array([k.odo_m for k in old])
-            far = float(np.abs(odo - self.keyframes[new].odo_m).max())  # the largest path length apart
+            far = float(np.abs(odo[:n_old] - odo[new]).max())  # the largest path length apart
             reach = p.loop_radius_m + p.loop_sigmas * max(p.odom_min_sigma_m, p.odom_sigma_per_m * far)
-            near = sorted(cKDTree(np.array([k.T_world[:3, 3] for k in old])).query_ball_point(here, reach * (1 + 1e-9)))
+            js = np.array(sorted(cKDTree(pos[:n_old]).query_ball_point(here, reach * (1 + 1e-9))), np.int64)
         else:
-            near = range(n_old)
-        dist = {j: float(np.linalg.norm(self.keyframes[j].T_world[:3, 3] - here)) for j in near}
-        ok = [j for j in near if dist[j] <= p.loop_radius_m + p.loop_sigmas * self._loop_sigma(new, j)[0]]
-        return sorted(ok, key=lambda j: (dist[j], j))[: p.loop_candidates]
+            js = np.arange(n_old)
+        if len(js) == 0:
+            return []
+        d = pos[js] - here
+        dist = np.sqrt((d * d).sum(axis=1))
+        L = np.abs(odo[js] - odo[new])
+        ok = dist <= p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, p.odom_sigma_per_m * L)
+        if p.odom_sigma_up_per_m > 0:  # along the two cameras' mean up axis
+            u = up[js] + up[new]
+            norm = np.sqrt((u * u).sum(axis=1))
+            height = np.abs((u * d).sum(axis=1)) / np.maximum(norm, 1e-300)
+            reach_up = p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, p.odom_sigma_up_per_m * L)
+            ok &= (norm < 1e-6) | (height <= reach_up)  # cameras upside down to each other: no common up
+        js, dist = js[ok], dist[ok]
+        return js[np.lexsort((js, dist))][: p.loop_candidates].tolist()
+
+    def _keyframe_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every keyframe's position (n, 3), camera up axis (-y, (n, 3)) in the world and path length (n,), as
+        float64 arrays: extended by the keyframes added since the last call, rebuilt after an optimisation
+        moved them (:meth:`_optimise`)."""
+        have = 0 if self._arrays is None or self._arrays[0] != self.optimisations else len(self._arrays[1])
+        if have < len(self.keyframes):
+            add = self.keyframes[have:]
+            rows = (np.array([kf.T_world[:3, 3] for kf in add], np.float64).reshape(-1, 3),
+                    -np.array([kf.T_world[:3, 1] for kf in add], np.float64).reshape(-1, 3),
+                    np.array([kf.odo_m for kf in add], np.float64))
+            old = self._arrays[1:] if have else (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+            self._arrays = (self.optimisations, *(np.concatenate([a, b]) for a, b in zip(old, rows)))
+        return self._arrays[1:]
 
     def _close_loops(self, new: int) -> tuple[list[tuple[int, int]], bool]:
         """Loop edges of keyframe ``new``: (list of (frame id, frame id), whether any needs an optimisation now).

@@ -2,12 +2,13 @@
 the loop candidates' spatial index (issue 22: a precise front end that lasts)."""
 
 import numpy as np
+import pytest
 
 from panovocc_cli.evaluation.trajectory import evaluate_trajectory
 from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.slam import SlamParams, Tracker
 from panovocc_cli.slam.registration import Cloud
-from panovocc_cli.slam.tracker import _Keyframe
+from panovocc_cli.slam.tracker import LEVEL_FIRST, _Keyframe
 
 
 def _ate(committed, seq):
@@ -87,3 +88,38 @@ def test_loop_candidates_from_the_index_equal_the_scan():
     assert min(sizes) == 0 and 5 < max(sizes) < 297  # the case tests something: some near, not all
     tr.params.loop_candidates = 3
     assert all(tr._loop_candidates(n) == tr._loop_candidates(n, index=False)[:3] for n in range(300))
+
+
+def _storeys(world: np.ndarray, **params) -> Tracker:
+    """Keyframes of a walk over two storeys 3 m apart: 40 along a 20 m corridor on the lower one (path 0-20 m), then 40
+    on the upper one, right above it, 10 m out and back (path 500-520 m: far along the path, so the horizontal sigma
+    reaches the whole lower storey); level cameras (LEVEL_FIRST's axes), all in ``world`` (4, 4)."""
+    tr = Tracker(64, 32, SlamParams(loop_candidates=1000, **params))
+    for i in range(80):
+        k = i % 40
+        T = LEVEL_FIRST.copy()
+        T[:3, 3] = [0.5 * k if i < 40 else 0.5 * min(k, 39 - k), 0.0, 3.0 * (i // 40)]
+        tr.keyframes.append(_Keyframe(i, Cloud(np.zeros((0, 3))), world @ T, 0.5 * k + 500.0 * (i // 40)))
+    return tr
+
+
+def test_loop_candidates_stay_on_their_storey():
+    """A keyframe a storey (3 m) above older ones, 500 m further along the path, has none of them as a loop
+    candidate (the up sigma: a panorama sees floor and ceiling); with ``odom_sigma_up_per_m`` = 0 (the translation's
+    sigma alike in every direction, as before) it has them all. Keyframes on its own storey still are. The test
+    follows the cameras' up axis, not the world's z: the same lists in a world turned 30 degrees about x."""
+    tilt = np.eye(4)
+    c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))
+    tilt[1:3, 1:3] = [[c, -s], [s, c]]
+    lists = []
+    for world in (np.eye(4), tilt):
+        gated, free = _storeys(world), _storeys(world, odom_sigma_up_per_m=0.0)
+        lists.append([gated._loop_candidates(new) for new in range(80)])
+        for new in range(41, 80):
+            assert gated._loop_candidates(new) == gated._loop_candidates(new, index=False)
+            assert all(j >= 40 for j in gated._loop_candidates(new))  # its own storey only
+            assert set(range(min(40, new - 6))) <= set(free._loop_candidates(new))  # the storey below (loop_min_gap 6)
+        assert gated._loop_candidates(79)[:3] == [40, 41, 42]  # back where the upper walk began: 0, 0.5, 1 m
+    assert lists[0] == lists[1]
+    with pytest.raises(ValueError, match="odom_sigma_up_per_m"):
+        SlamParams(odom_sigma_up_per_m=-1.0).check()
