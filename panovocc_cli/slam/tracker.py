@@ -534,14 +534,18 @@ class Tracker:
             return []
         pos, up, odo = self._keyframe_arrays()
         here = pos[new]
+        js = np.arange(n_old)
         if index:
-            from scipy.spatial import cKDTree
-
             far = float(np.abs(odo[:n_old] - odo[new]).max())  # the largest path length apart
             reach = p.loop_radius_m + p.loop_sigmas * max(p.odom_min_sigma_m, p.odom_sigma_per_m * far)
-            js = np.array(sorted(cKDTree(pos[:n_old]).query_ball_point(here, reach * (1 + 1e-9))), np.int64)
-        else:
-            js = np.arange(n_old)
+            lo, hi = pos[:n_old].min(axis=0), pos[:n_old].max(axis=0)
+            if float(np.linalg.norm(np.maximum(np.abs(lo - here), np.abs(hi - here)))) > reach:
+                # the ball does not hold every keyframe (late in a long walk it does, the path-length sigma
+                # growing past the map's extent: then every keyframe is tested without building the tree)
+                from scipy.spatial import cKDTree
+
+                js = np.asarray(cKDTree(pos[:n_old]).query_ball_point(here, reach * (1 + 1e-9), return_sorted=True),
+                                np.int64)
         if len(js) == 0:
             return []
         d = pos[js] - here
