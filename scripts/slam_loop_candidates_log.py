@@ -1,19 +1,18 @@
 """Every registration that verifies a loop candidate, over a stretch of a walk (docs/slam.md, "Loop candidates a
 storey away"): the tracker over SEQ's frames 0 to B (started at the sequence's first pose, ``SlamParams`` defaults
-or the ``NAME=VALUE`` overrides), and for the keyframes of frames A to B each of ``Tracker._close_loops``'
+or the ``--params`` JSON fields), and for the keyframes of frames A to B each of ``Tracker._close_loops``'
 registrations as one JSON object: frame, new keyframe, candidate keyframe and their gap, the candidate's
 horizontal and vertical offset from the new keyframe (metres, estimated poses), the correspondence distance, the
 fitness and the wall ms. Then a summary line per correspondence distance: registrations, ms in all, and how many
 stayed below ``min_fitness``.
 
-    python scripts/slam_loop_candidates_log.py SEQ A B [NAME=VALUE ...]
+    python scripts/slam_loop_candidates_log.py SEQ A B [--params JSON]
 """
 
 from __future__ import annotations
 
-import dataclasses
+import argparse
 import json
-import sys
 import time
 
 import numpy as np
@@ -26,15 +25,14 @@ def main() -> None:
     from panovocc_cli.io.sequence import Sequence
     from panovocc_cli.slam import SlamParams, Tracker
 
-    seq, a, b = Sequence(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
-    types = {f.name: str(f.type) for f in dataclasses.fields(SlamParams)}
-    over = {}
-    for arg in sys.argv[4:]:
-        name, _, value = arg.partition("=")
-        if name not in types:
-            sys.exit(f"{arg}: expected NAME=VALUE with NAME a SlamParams field")
-        over[name] = {"int": int, "float": float, "bool": lambda v: v.lower() in ("1", "true", "yes")}.get(types[name], str)(value)
-    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**over), T_world_first=seq.poses[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("seq")
+    ap.add_argument("first", type=int)
+    ap.add_argument("last", type=int)
+    ap.add_argument("--params", default="{}", help="SlamParams fields as JSON (default: the defaults)")
+    args = ap.parse_args()
+    seq, a, b = Sequence(args.seq), args.first, args.last
+    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**json.loads(args.params)), T_world_first=seq.poses[0])
     log, state = [], {"new": None, "frame": -1}
     close, align = tr._close_loops, tr.reg.align
 

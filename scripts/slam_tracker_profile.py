@@ -5,16 +5,17 @@ every 100 frames: wall ms a frame, and for those 100 frames the seconds and call
 graph's update a keyframe (``_sync``: iSAM2) and its optimisation (``_optimise``), loop candidates and loops found, and the map frames the tracker hands out to be
 revised (``revised``: what ``map --poses slam`` then re-integrates; ``revise_events``: the frames that hand any).
 
-    python scripts/slam_tracker_profile.py SEQ N [NAME=VALUE ...]
+    python scripts/slam_tracker_profile.py SEQ N [--params JSON]
 
-``NAME=VALUE``: :class:`panovocc_cli.slam.SlamParams` fields other than the defaults (``loop_linked=3``).
+``--params``: :class:`panovocc_cli.slam.SlamParams` fields other than the defaults (``'{"loop_linked": 3}'``), as
+``scripts/slam_optimiser_ab.py`` and ``scripts/slam_front_end_run.py`` take them.
 """
 
 from __future__ import annotations
 
+import argparse
 import collections
 import json
-import sys
 import time
 
 from panovocc_cli.runtime import setup
@@ -25,19 +26,14 @@ def main() -> None:
     from panovocc_cli.io.sequence import Sequence
     from panovocc_cli.slam import SlamParams, Tracker
 
-    seq = Sequence(sys.argv[1])
-    n = int(sys.argv[2])
-    import dataclasses
-
-    types = {f.name: f.type for f in dataclasses.fields(SlamParams)}
-    overrides = {}
-    for arg in sys.argv[3:]:
-        name, _, value = arg.partition("=")
-        if name not in types:
-            sys.exit(f"{arg}: expected NAME=VALUE with NAME a SlamParams field")
-        kind = {"int": int, "float": float, "bool": lambda v: v.lower() in ("1", "true", "yes")}.get(str(types[name]), str)
-        overrides[name] = kind(value)
-    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**overrides), T_world_first=seq.poses[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("seq")
+    ap.add_argument("frames", type=int)
+    ap.add_argument("--params", default="{}", help="SlamParams fields as JSON (default: the defaults)")
+    a = ap.parse_args()
+    seq = Sequence(a.seq)
+    n = a.frames
+    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**json.loads(a.params)), T_world_first=seq.poses[0])
     stats = collections.defaultdict(float)
 
     def timed(obj, name, key, count=None):
