@@ -29,8 +29,8 @@ frame's pose, ``T_world_first``):
    up axis by max(``odom_min_sigma_m``, ``odom_sigma_up_per_m`` L): a panorama sees floor and ceiling, which
    hold the height (measured: under 3e-5 m / m over the building's 1.5 km). A new keyframe is
    compared with older keyframes (at least ``loop_min_gap`` keyframes back) within ``loop_radius_m``
-   plus ``loop_sigmas`` sigmas of it, and as close along the up axis with the up sigma (the two cameras'
-   mean up, -y: a storey above or below is no candidate) (nearest first, at most ``loop_candidates``); a candidate is
+   plus ``loop_sigmas`` sigmas of it, and as close along the up axis with the up sigma (the mean of every
+   keyframe's camera up, -y, so far: a storey above or below is no candidate) (nearest first, at most ``loop_candidates``); a candidate is
    verified by registration from the current estimate and accepted at fitness >= ``loop_fitness``
    (``loop_max_corr_m``) when its correction of the estimate lies within ``loop_sigmas`` sigmas.
    Accepted candidates become uncertain edges. With ``loop_linked`` = L > 0 a candidate is skipped unverified
@@ -552,12 +552,12 @@ class Tracker:
         dist = np.sqrt((d * d).sum(axis=1))
         L = np.abs(odo[js] - odo[new])
         ok = dist <= p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, p.odom_sigma_per_m * L)
-        if p.odom_sigma_up_per_m > 0:  # along the two cameras' mean up axis
-            u = up[js] + up[new]
-            norm = np.sqrt((u * u).sum(axis=1))
-            height = np.abs((u * d).sum(axis=1)) / np.maximum(norm, 1e-300)
+        g = up[: new + 1].sum(axis=0)  # the mean up axis of the keyframes so far: the walk's tilts average out
+        norm = float(np.sqrt(g @ g))
+        if p.odom_sigma_up_per_m > 0 and norm > 1e-6 * (new + 1):  # (cameras turned every way: no common up)
+            height = np.abs(d @ (g / norm))
             reach_up = p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, p.odom_sigma_up_per_m * L)
-            ok &= (norm < 1e-6) | (height <= reach_up)  # cameras upside down to each other: no common up
+            ok &= height <= reach_up
         js, dist = js[ok], dist[ok]
         return js[np.lexsort((js, dist))][: p.loop_candidates].tolist()
 

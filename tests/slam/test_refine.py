@@ -90,14 +90,18 @@ def test_loop_candidates_from_the_index_equal_the_scan():
     assert all(tr._loop_candidates(n) == tr._loop_candidates(n, index=False)[:3] for n in range(300))
 
 
-def _storeys(world: np.ndarray, **params) -> Tracker:
+def _storeys(world: np.ndarray, tilt_deg: float = 0.0, **params) -> Tracker:
     """Keyframes of a walk over two storeys 3 m apart: 40 along a 20 m corridor on the lower one (path 0-20 m), then 40
     on the upper one, right above it, 10 m out and back (path 500-520 m: far along the path, so the horizontal sigma
-    reaches the whole lower storey); level cameras (LEVEL_FIRST's axes), all in ``world`` (4, 4)."""
+    reaches the whole lower storey); level cameras (LEVEL_FIRST's axes), or tilted ``tilt_deg`` towards the corridor
+    and back on alternate keyframes (a walk's sway), all in ``world`` (4, 4)."""
     tr = Tracker(64, 32, SlamParams(loop_candidates=1000, **params))
     for i in range(80):
         k = i % 40
-        T = LEVEL_FIRST.copy()
+        a = np.radians(tilt_deg if i % 2 else -tilt_deg)
+        T = np.eye(4)
+        T[[0, 0, 2, 2], [0, 2, 0, 2]] = [np.cos(a), np.sin(a), -np.sin(a), np.cos(a)]  # about the world's y
+        T = T @ LEVEL_FIRST
         T[:3, 3] = [0.5 * k if i < 40 else 0.5 * min(k, 39 - k), 0.0, 3.0 * (i // 40)]
         tr.keyframes.append(_Keyframe(i, Cloud(np.zeros((0, 3))), world @ T, 0.5 * k + 500.0 * (i // 40)))
     return tr
@@ -121,5 +125,8 @@ def test_loop_candidates_stay_on_their_storey():
             assert set(range(min(40, new - 6))) <= set(free._loop_candidates(new))  # the storey below (loop_min_gap 6)
         assert gated._loop_candidates(79)[:3] == [40, 41, 42]  # back where the upper walk began: 0, 0.5, 1 m
     assert lists[0] == lists[1]
+    # cameras swaying 4.5 degrees: over the corridor's 20 m two cameras' own up axes would read the storey 1.5 m
+    # lower and admit it; the mean up of the walk's keyframes does not sway
+    assert [_storeys(np.eye(4), 4.5)._loop_candidates(new) for new in range(80)] == lists[0]
     with pytest.raises(ValueError, match="odom_sigma_up_per_m"):
         SlamParams(odom_sigma_up_per_m=-1.0).check()
