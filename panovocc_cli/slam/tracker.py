@@ -537,7 +537,7 @@ class Tracker:
         js = np.arange(n_old)
         if index:
             far = float(np.abs(odo[:n_old] - odo[new]).max())  # the largest path length apart
-            reach = p.loop_radius_m + p.loop_sigmas * max(p.odom_min_sigma_m, p.odom_sigma_per_m * far)
+            reach = float(self._loop_reach(far, p.odom_sigma_per_m))
             lo, hi = pos[:n_old].min(axis=0), pos[:n_old].max(axis=0)
             if float(np.linalg.norm(np.maximum(np.abs(lo - here), np.abs(hi - here)))) > reach:
                 # the ball does not hold every keyframe (late in a long walk it does, the path-length sigma
@@ -551,15 +551,20 @@ class Tracker:
         d = pos[js] - here
         dist = np.sqrt((d * d).sum(axis=1))
         L = np.abs(odo[js] - odo[new])
-        ok = dist <= p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, p.odom_sigma_per_m * L)
+        ok = dist <= self._loop_reach(L, p.odom_sigma_per_m)
         g = up[: new + 1].sum(axis=0)  # the mean up axis of the keyframes so far: the walk's tilts average out
         norm = float(np.sqrt(g @ g))
         if p.odom_sigma_up_per_m > 0 and norm > 1e-6 * (new + 1):  # (cameras turned every way: no common up)
-            height = np.abs(d @ (g / norm))
-            reach_up = p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, p.odom_sigma_up_per_m * L)
-            ok &= height <= reach_up
+            ok &= np.abs(d @ (g / norm)) <= self._loop_reach(L, p.odom_sigma_up_per_m)
         js, dist = js[ok], dist[ok]
         return js[np.lexsort((js, dist))][: p.loop_candidates].tolist()
+
+    def _loop_reach(self, L, per_m: float):
+        """How far (metres) a loop candidate may lie from a keyframe a path length ``L`` (metres, scalar or array)
+        away: ``loop_radius_m`` plus ``loop_sigmas`` odometry sigmas, sigma = max(``odom_min_sigma_m``, ``per_m`` L)
+        (``odom_sigma_per_m`` in position, ``odom_sigma_up_per_m`` along the up axis)."""
+        p = self.params
+        return p.loop_radius_m + p.loop_sigmas * np.maximum(p.odom_min_sigma_m, per_m * L)
 
     def _keyframe_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every keyframe's position (n, 3), camera up axis (-y, (n, 3)) in the world and path length (n,), as

@@ -111,7 +111,8 @@ def test_loop_candidates_stay_on_their_storey():
     """A keyframe a storey (3 m) above older ones, 500 m further along the path, has none of them as a loop
     candidate (the up sigma: a panorama sees floor and ceiling); with ``odom_sigma_up_per_m`` = 0 (the translation's
     sigma alike in every direction, as before) it has them all. Keyframes on its own storey still are. The test
-    follows the cameras' up axis, not the world's z: the same lists in a world turned 30 degrees about x."""
+    follows the keyframes' mean up axis, not the world's z: the same lists in a world turned 30 degrees about x and
+    with cameras that sway."""
     tilt = np.eye(4)
     c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))
     tilt[1:3, 1:3] = [[c, -s], [s, c]]
