@@ -7,8 +7,9 @@ WORK/track.csv (skipped when both exist), then one JSON object of the front end'
 * the final refinement's wall time (the last frame's time);
 * the keyframe store (``Tracker.memory``: downsampled points, and the registration structures of the held
   keyframes) at each tenth and at the end, bytes; the process's resident memory at the end and its largest;
-* loop closures, and those joining frames on different floors (``--floor-height``: floors by the reference
-  camera height, rounded from the first frame's);
+* loop closures, those joining frames on different floors (``--floor-height``: floors by the reference
+  camera height, rounded from the first frame's), and those joining two frames of one floor between which the
+  walk went to another floor and came back (``loops_around_other_floors``: ``synth --building --descend``);
 * ATE RMSE / max of the poses handed out (every frame's, WORK/slam/poses.txt) against SEQ/poses.txt,
   without alignment (the SLAM world is the reference's) and SE(3)-aligned (evo's protocol).
 
@@ -65,6 +66,10 @@ def main() -> None:
     floor = np.round((ref[:, 2, 3] - ref[0, 2, 3]) / a.floor_height).astype(int)
     loops = info["loop_closures"]
     across = sum(1 for i, j in loops if floor[i] != floor[j])
+    # loops whose two frames are on one floor but whose walk between them went to another floor and came back
+    # (synth --building --descend): the loop closes around the floors above
+    lo_hi = [(min(i, j), max(i, j)) for i, j in loops]
+    around = [(a_, b_) for a_, b_ in lo_hi if floor[a_] == floor[b_] and np.any(floor[a_:b_ + 1] != floor[a_])]
     res = {"frames": n, "wall_s": wall, "ms_by_tenth": [round(x, 1) for x in tenth],
            "ms_early": round(early, 1), "ms_late": round(late, 1), "late_over_early": round(late / early, 3),
            "mean_ms": round(float(online.mean()), 1), "refinement_s": round(float(ms[-1]) / 1e3, 1),
@@ -73,6 +78,8 @@ def main() -> None:
            "rss_mb_end": float(rows[-1]["rss_mb"]), "rss_mb_max": max(float(r["rss_mb"]) for r in rows),
            "keyframes": info["keyframes"], "store": info["keyframe_store"], "loops": len(loops),
            "loops_across_floors": across, "floors": sorted(set(floor.tolist())),
+           "loops_around_other_floors": len(around),
+           "around_frames_apart_max": max((b_ - a_ for a_, b_ in around), default=0),
            "unplaced": len(info["unplaced_frames"]), "optimisations": info["optimisations"]}
     for align in ("none", "se3"):
         e = evaluate_trajectory(est, ref, align).ate

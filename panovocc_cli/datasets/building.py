@@ -397,10 +397,11 @@ def _check_room_walk(house: _Floor, room: Room) -> None:
     plan_path(alone, tour)
 
 
-def _floor_tour(level: int, floors: int):
+def _floor_tour(level: int, floors: int, descend: bool = False):
     """The waypoints of floor ``level``'s part of the walk: from the entrance (ground floor) or the stair
     landing, into every room (south row eastward, then north row westward; through the door, its two
-    viewpoints, back out), then (below the top floor) back to the landing, at the foot of the first flight."""
+    viewpoints, back out), then (below the top floor, or on every floor with ``descend``) back to the landing,
+    at the foot of the first flight."""
 
     def tour(house: _Floor, centers: np.ndarray, views, snap) -> list[int]:
         p = house.plan
@@ -420,11 +421,19 @@ def _floor_tour(level: int, floors: int):
         north = [r for r in rooms if r.y0 >= C.y1]
         for r in sorted(south, key=lambda r: r.x0) + sorted(north, key=lambda r: -r.x0):
             way += visit_room(r, C, centers, views, snap)
-        if level < floors - 1:
+        if level < floors - 1 or descend:
             way += [shaft_out, shaft_in, snap(np.array([S.x0 + 0.55, ya]), S), snap(np.array([xl, ya]), S)]
         return way
 
     return tour
+
+
+def _leg(fl: "_Floor", a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The floor's clearance-weighted path from ``a`` to ``b`` (metres, (2,)), with its ends put at exactly
+    ``a`` and ``b`` (both are points of the floor's own walk, so they lie on free nodes' paths already)."""
+    path = plan_path(fl, lambda house, centers, views, snap: [snap(a), snap(b)], reach=3.0)
+    path[0], path[-1] = a, b
+    return path
 
 
 def _stair_walk(p: Plan, start: np.ndarray, z_floor: float, step: float = 0.05) -> np.ndarray:
@@ -455,7 +464,8 @@ def _stair_walk(p: Plan, start: np.ndarray, z_floor: float, step: float = 0.05) 
 
 
 def generate_building(seed: int = DEFAULT_SEED, floors: int | None = None, rooms: int | None = None,
-                      frames: int | None = None, offset: tuple[float, float, float] | None = None) -> dict:
+                      frames: int | None = None, offset: tuple[float, float, float] | None = None,
+                      descend: bool = False) -> dict:
     """A building-scale scene and its walk (pure, no file I/O).
 
     Parameters
@@ -463,7 +473,11 @@ def generate_building(seed: int = DEFAULT_SEED, floors: int | None = None, rooms
     seed : random seed; floors : 2-8 (None: ``BUILDING_FLOORS``); rooms : rooms a floor, 2-60 (None: the
     fewest that give ``BUILDING_AREA`` m² in all); frames : poses along the walk (None: one every
     ``BUILDING_STEP`` metres); offset : (x, y, z) metres the building is moved (None:
-    :func:`~panovocc_cli.datasets.layout.lattice_offset`).
+    :func:`~panovocc_cli.datasets.layout.lattice_offset`); descend : after the top floor's rooms the walk goes
+    back to its landing, down every flight (each floor's landing crossed from the flight it arrives by to the
+    one it leaves by) and on the ground floor out of the stair shaft along the corridor to the entrance where
+    it began: a walk that comes back to a floor it left for the floors above (the same scene; the walk up is
+    the same but for the top floor's way back to its landing).
 
     Returns
     -------
@@ -484,6 +498,7 @@ def generate_building(seed: int = DEFAULT_SEED, floors: int | None = None, rooms
     plan = draw_plan(seed, floors, rooms)
     meshes, classes, all_rooms, kinds, room_floors, walk = [], [], [], [], [], []
     start = None
+    built, paths, ups = [], [], []  # each floor and its walk, each stair walk up (descend)
     for level in range(floors):
         z = level * plan.storey
         for attempt in range(60):
@@ -492,7 +507,7 @@ def generate_building(seed: int = DEFAULT_SEED, floors: int | None = None, rooms
                 fl = _Floor(np.random.default_rng(stream), plan, level, floors, stream)
                 fl.furnish()
                 fl.build_shell()
-                path = plan_path(fl, _floor_tour(level, floors), reach=3.0)
+                path = plan_path(fl, _floor_tour(level, floors, descend), reach=3.0)
             except LayoutRetry:
                 continue
             break
@@ -502,8 +517,11 @@ def generate_building(seed: int = DEFAULT_SEED, floors: int | None = None, rooms
             walk[-1][-1, :2] = path[0]
         part = np.column_stack([path, np.full(len(path), z)])
         walk.append(part)
+        built.append(fl)
+        paths.append(path)
         if level < floors - 1:
             walk.append(_stair_walk(plan, path[-1], z)[1:])
+            ups.append(walk[-1])
             start = walk[-1][-1]
         v, q, obj, col = fl.mb.finish()
         meshes.append((v + np.array([0.0, 0.0, z]), q, obj, col))
@@ -511,6 +529,14 @@ def generate_building(seed: int = DEFAULT_SEED, floors: int | None = None, rooms
         all_rooms += fl.rooms
         kinds += [r.kind for r in fl.rooms]
         room_floors += [level] * len(fl.rooms)
+    if descend:  # down every flight (each the way up, reversed) to the ground floor, then out to the entrance
+        for level in range(floors - 2, -1, -1):
+            above = paths[level + 1]
+            across = _leg(built[level + 1], above[-1], above[0])  # the landing: from the flight down to the other
+            walk.append(np.column_stack([across, np.full(len(across), (level + 1) * plan.storey)]))
+            walk.append(ups[level][::-1])  # the next leg starts at paths[level][-1], where the walk up began
+        out = _leg(built[0], paths[0][-1], paths[0][0])
+        walk.append(np.column_stack([out, np.zeros(len(out))]))  # (repeated points go below)
     names = [c for cl in classes for c in cl]
     if not set(REQUIRED) <= {canonical_name(c) for c in names}:
         raise PanovoccError(f"building {seed}: a class of {', '.join(REQUIRED)} is missing (try another seed)")

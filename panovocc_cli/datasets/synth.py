@@ -29,7 +29,8 @@ class SynthConfig:
     ``building``); offset: (x, y, z) metres the home is moved from the origin (a user-chosen placement
     relative to the voxel lattice; None: drawn from the seed); house: a house-scale home
     (:mod:`panovocc_cli.datasets.house`); building: floors of rooms off corridors joined by a staircase
-    (:mod:`panovocc_cli.datasets.building`); floors: the building's floors (None: 3).
+    (:mod:`panovocc_cli.datasets.building`); floors: the building's floors (None: 3); descend: the building's
+    walk comes back down to the ground floor's entrance.
     """
 
     out: Path = option(argument=True, metavar="SCENE", help="Scene folder to write (Replica layout: "
@@ -49,6 +50,9 @@ class SynthConfig:
     building: bool = option(False, help="A building: floors of furnished rooms off a corridor, joined by a dog-leg "
                                         "staircase; one walk through every room of every floor, up the stairs.")
     floors: int | None = option(None, min=2, max=8, show_default="3", help="Floors of the building (--building only).")
+    descend: bool = option(False, help="With --building: after the top floor's rooms, walk back down every flight to "
+                                       "the ground floor and along its corridor to the entrance (a floor left for the "
+                                       "floors above is seen again: loop closure across floors).")
     overwrite: bool = option(False, help="Replace a previous panovocc scene in SCENE (never any other folder).")
 
 
@@ -79,11 +83,13 @@ def run_synth(cfg: SynthConfig) -> dict:
         raise PanovoccError("--house and --building are two different scenes: give one of them")
     if cfg.floors is not None and not cfg.building:
         raise PanovoccError("--floors only applies with --building")
+    if cfg.descend and not cfg.building:
+        raise PanovoccError("--descend only applies with --building")
     check_output(cfg.out, "scene", cfg.overwrite)  # as the command line: never replace what synth did not write
     if cfg.building:
         from .building import BUILDING_FLOORS, generate_building
 
-        g = generate_building(cfg.seed, cfg.floors, cfg.rooms, cfg.frames, cfg.offset)
+        g = generate_building(cfg.seed, cfg.floors, cfg.rooms, cfg.frames, cfg.offset, descend=cfg.descend)
         cfg = replace(cfg, floors=BUILDING_FLOORS if cfg.floors is None else cfg.floors,
                       frames=len(g["T_world_cam"]))
     elif cfg.house:

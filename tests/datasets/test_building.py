@@ -220,3 +220,46 @@ def test_building_end_to_end_gt_render_map_eval(tmp_path, capsys):
     zs = np.nonzero(((pred.labels > 0) & (pred.labels < 255)).any(axis=(0, 1)))[0]
     assert (zs.max() - zs.min()) * pred.voxel_size > 2.5  # occupied voxels on both floors
     assert os.path.isfile(tmp_path / "seq" / "depth" / "000039.png")
+
+
+@pytest.fixture(scope="module")
+def descending():
+    """A small two-floor building whose walk comes back down (``descend``), and the same without it."""
+    return generate_building(3, floors=2, rooms=2, descend=True), generate_building(3, floors=2, rooms=2)
+
+
+def test_descend_walks_back_down_to_the_entrance(descending):
+    """``descend``: the same building; the walk goes up floor by floor, then down every flight on the stairs,
+    ending on the ground floor where it began (the entrance), clear of geometry at every pose and step."""
+    import open3d as o3d
+
+    b, up_only = descending
+    for k in ("vertices", "quads", "face_object", "object_classes"):
+        assert np.array_equal(np.asarray(b[k]), np.asarray(up_only[k])), k
+    rs = o3d.t.geometry.RaycastingScene()
+    faces = split_polygons(b["quads"])
+    rs.add_triangles(o3d.core.Tensor(b["vertices"].astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    names = np.array([canonical_name(c) for c in b["object_classes"]])[np.repeat(b["face_object"], 2)]
+    T = b["T_world_cam"]
+    P = T[:, :3, 3]
+    level = _floor_of(b, P[:, 2] - CAM_Z[0])
+    top = int(np.argmax(level))
+    assert level[top] == 1 and np.all(np.diff(level[: top + 1]) >= 0) and np.all(np.diff(level[top:]) <= 0)
+    assert level[-1] == 0 and np.linalg.norm(P[-1, :2] - P[0, :2]) < 0.3  # back at the entrance
+    assert len(T) > len(up_only["T_world_cam"])
+    t, prim = _cast(rs, P, np.tile([0.0, 0.0, -1.0], (len(P), 1)))
+    on_stairs = names[prim] == "stair"
+    down = np.nonzero(np.diff(level) < 0)[0][0]  # the last pose on the upper floor before the walk goes down
+    assert on_stairs[down + 1:down + 11].all() and on_stairs[top:].sum() >= 20  # down the flights
+    d = rs.compute_distance(o3d.core.Tensor(P.astype(np.float32))).numpy()
+    assert d.min() >= CLEARANCE - 0.01
+    step = np.diff(P, axis=0)
+    L = np.linalg.norm(step, axis=1)
+    hit, _ = _cast(rs, P[:-1], step / L[:, None])
+    assert np.all(hit > L)
+
+
+def test_descend_needs_building(tmp_path, capsys):
+    code, _, err = run_cli(capsys, ["synth", tmp_path / "x", "--descend"])
+    assert code == 2 and "--descend only applies with --building" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
