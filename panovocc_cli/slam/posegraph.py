@@ -80,17 +80,43 @@ def _anchored(values, n: int) -> np.ndarray:
     return np.stack([np.eye(4)] + [P0_inv @ values.atPose3(k).matrix() for k in range(1, n)])
 
 
-def solve_batch(poses: np.ndarray, edges: list, max_corr_m: float) -> np.ndarray:
+def heading_factor(k: int, P: np.ndarray, up: np.ndarray, correction: float, sigma: float):
+    """A prior on keyframe ``k``'s heading alone: its pose ``P`` (4, 4, in the first keyframe's frame) turned by
+    ``correction`` radians about ``up`` (unit, same frame) is where it should point; the information is
+    1 / ``sigma``^2 about that axis (in the keyframe's body frame, GTSAM's tangent), none in any other direction
+    (a floor of 1e-9 of it, as :func:`_factor`'s), under a Huber kernel (a keyframe whose walls were misread
+    pulls no harder than a linear cost)."""
+    import gtsam
+
+    from .heading import rotation_about
+
+    R = np.asarray(P, np.float64)[:3, :3]
+    target = np.eye(4)
+    target[:3, :3] = rotation_about(up, correction) @ R
+    target[:3, 3] = np.asarray(P, np.float64)[:3, 3]
+    a = R.T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
+    L = np.zeros((6, 6))
+    L[:3, :3] = np.outer(a, a) / sigma ** 2
+    L += RIDGE * float(np.abs(L).max()) * np.eye(6)
+    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+                                           gtsam.noiseModel.Gaussian.Information(L))
+    return gtsam.PriorFactorPose3(k, gtsam.Pose3(target), noise)
+
+
+def solve_batch(poses: np.ndarray, edges: list, max_corr_m: float, priors: list | None = None) -> np.ndarray:
     """GTSAM Levenberg-Marquardt over the whole graph (the factors of :class:`IncrementalGraph`).
 
     poses : (n, 4, 4) float64, initial poses in the first keyframe's frame (``poses[0]`` the identity)
-    edges : list of edges (module docstring); returns the optimised (n, 4, 4), ``[0]`` the identity."""
+    edges : list of edges (module docstring); priors : GTSAM factors added as they are (the heading priors of
+    :func:`heading_factor`); returns the optimised (n, 4, 4), ``[0]`` the identity."""
     import gtsam
 
     graph = gtsam.NonlinearFactorGraph()
     graph.add(_prior())
     for e in edges:
         graph.add(_factor(*e, max_corr_m))
+    for f in priors or ():
+        graph.add(f)
     values = gtsam.Values()
     for k, P in enumerate(poses):
         values.insert(k, gtsam.Pose3(np.asarray(P, np.float64)))

@@ -153,6 +153,14 @@ class SlamParams:
     #                                 corrections first, the rest later (0: every one at once, as before)
     final_revise_m: float = 0.0005  # after the final refinement: finer (the poses handed out are the refined ones)
     final_revise_deg: float = 0.01
+    heading_prior: bool = False     # Manhattan heading: the final refinement pulls each keyframe's wall directions
+    #                                 (mod 90 deg, about the up axis) to the first keyframes' (:mod:`.heading`);
+    #                                 for buildings of perpendicular walls (a storey of stairs turns a floor by
+    #                                 0.05-0.09 deg otherwise: docs/slam.md "The building's heading"); off: none
+    heading_sigma_deg: float = 0.05  # its standard deviation a keyframe (measured scatter 0.014-0.036 deg)
+    heading_max_deg: float = 1.0    # a keyframe whose walls read further than this from the reference gets none
+    heading_min_share: float = 0.3  # nor one whose horizontal normals lie within 2 deg of its heading less often
+    heading_reference: int = 8      # the reference: the circular mean of the first this many keyframes' headings
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
     kf_held: int = 32               # keyframes that keep their registration structures (the last used; >= 2)
 
@@ -165,6 +173,11 @@ class SlamParams:
             raise ValueError(f"odom_sigma_up_per_m must be >= 0 (0: as odom_sigma_per_m), got {self.odom_sigma_up_per_m}")
         if self.revise_per_frame < 0:
             raise ValueError(f"revise_per_frame must be >= 0 (0: every revision at once), got {self.revise_per_frame}")
+        if self.heading_prior and self.optimiser != "isam2":
+            raise ValueError("heading_prior needs the isam2 optimiser (GTSAM's batch solve of the refinement)")
+        if self.heading_prior and not (self.heading_sigma_deg > 0 and self.heading_max_deg > 0
+                                       and self.heading_reference >= 1):
+            raise ValueError("heading_sigma_deg and heading_max_deg must be > 0 and heading_reference >= 1")
         return self
 
 
@@ -256,6 +269,8 @@ class Tracker:
         self._committed: dict[int, np.ndarray] = {}
         self._loop_ends: dict[int, list[int]] = {}  # keyframe -> the older keyframes its loop edges join it to
         self.loops_skipped = 0  # candidates not verified (loop_linked)
+        self.heading = None  # the last refinement's heading priors (heading_prior), :meth:`_heading_priors`
+        self.heading_corrections = None  # and each keyframe's correction, radians (nan: no heading read)
         self._pending: deque[int] = deque()  # frames an optimisation moved, not yet handed out (revise_per_frame), largest first
         self.lost: list[int] = []
         self.relocalised: list[int] = []
@@ -705,8 +720,11 @@ class Tracker:
         T0_inv = np.linalg.inv(T0)
         if p.optimiser == "open3d" or batch:
             poses = np.stack([T0_inv @ kf.T_world for kf in self.keyframes])
-            solve = solve_open3d if p.optimiser == "open3d" else solve_batch
-            P = solve(poses, self._edges, p.loop_max_corr_m)
+            if p.optimiser == "open3d":
+                P = solve_open3d(poses, self._edges, p.loop_max_corr_m)
+            else:
+                priors = self._heading_priors(poses, T0_inv) if batch and p.heading_prior else None
+                P = solve_batch(poses, self._edges, p.loop_max_corr_m, priors)
             self._graph = None
         else:
             self._sync()
@@ -714,6 +732,45 @@ class Tracker:
         for kf, Pk in zip(self.keyframes[1:], P[1:]):
             kf.T_world = T0 @ Pk
         self.optimisations += 1
+
+    def _heading_priors(self, poses: np.ndarray, T0_inv: np.ndarray) -> list:
+        """The heading priors of a batch solve (``heading_prior``; :mod:`.heading`): each keyframe's wall heading
+        in the world under its current pose, against the circular mean (mod 90 deg) of the first
+        ``heading_reference`` keyframes'; a keyframe within ``heading_max_deg`` of it whose normals agree
+        (``heading_min_share``) gets :func:`.posegraph.heading_factor` turning it onto the reference. Its
+        figures go to :attr:`heading` (keyframes with a prior, the corrections' median and largest, degrees)."""
+        from .heading import cloud_normals, wall_heading, wrap_quarter
+        from .posegraph import heading_factor
+
+        p = self.params
+        _, up_all, _ = self._keyframe_arrays()
+        g = up_all.sum(axis=0)
+        if float(np.linalg.norm(g)) <= 1e-6 * len(up_all):
+            return []
+        up = g / np.linalg.norm(g)
+        phi = np.full(len(self.keyframes), np.nan)
+        share = np.zeros(len(self.keyframes))
+        for k, kf in enumerate(self.keyframes):
+            n = cloud_normals(kf.cloud.points, 2.5 * self.reg.voxel_m, self.reg.threads)
+            phi[k], share[k] = wall_heading(n @ kf.T_world[:3, :3].T, up)
+        ref = phi[: p.heading_reference]
+        ref = ref[np.isfinite(ref)]
+        self.heading = {"priors": 0, "median_deg": 0.0, "max_deg": 0.0}
+        if len(ref) == 0:
+            return []
+        phi_ref = float(np.angle(np.exp(4j * ref).sum()) / 4)
+        c = wrap_quarter(phi_ref - phi)  # nan where no heading
+        self.heading_corrections = c
+        ok = np.isfinite(c) & (share >= p.heading_min_share) & (np.abs(np.nan_to_num(c, nan=np.inf))
+                                                                 <= np.radians(p.heading_max_deg))
+        ok[0] = False  # the first keyframe is held by its own prior
+        up0 = T0_inv[:3, :3] @ up  # the graph is solved in the first keyframe's frame
+        sigma = np.radians(p.heading_sigma_deg)
+        out = [heading_factor(k, poses[k], up0, float(c[k]), sigma) for k in np.nonzero(ok)[0]]
+        if len(out):
+            self.heading = {"priors": len(out), "median_deg": float(np.degrees(np.median(np.abs(c[ok])))),
+                            "max_deg": float(np.degrees(np.abs(c[ok]).max()))}
+        return out
 
     def _revisions(self, exclude: int, trans_m: float | None = None, rot_deg: float | None = None,
                    budget: int = 0) -> list[tuple[int, np.ndarray]]:
@@ -765,6 +822,6 @@ class Tracker:
         frames, the keyframe store (:meth:`memory`)."""
         return {"keyframes": len(self.keyframes), "keyframe_ids": [k.frame_id for k in self.keyframes],
                 "loop_closures": [list(x) for x in self.loops], "optimisations": self.optimisations,
-                "loops_skipped": self.loops_skipped, "refinements": self.refinements, "keyframe_store": self.memory(),
+                "loops_skipped": self.loops_skipped, "heading": self.heading, "refinements": self.refinements, "keyframe_store": self.memory(),
                 "lost_frames": list(self.lost), "relocalised_frames": list(self.relocalised),
                 "params": dataclasses.asdict(self.params), "stride": self.stride}

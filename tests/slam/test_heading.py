@@ -1,0 +1,89 @@
+"""slam/heading.py and the refinement's heading prior (``SlamParams.heading_prior``): a keyframe's wall heading
+read from its normals, modulo 90 degrees; a prior that turns one keyframe about the up axis and nothing else;
+a tracker whose later keyframes were turned by a small heading error finds that error."""
+
+import numpy as np
+import pytest
+
+from panovocc_cli.io.sequence import Sequence
+from panovocc_cli.slam import SlamParams, Tracker
+from panovocc_cli.slam.heading import rotation_about, wall_heading, wrap_quarter
+from panovocc_cli.slam.posegraph import heading_factor, solve_batch
+
+
+def _normals(heading_deg, n_walls=3000, n_clutter=1500, noise_deg=1.0, seed=0):
+    """Wall normals in the four directions heading + k 90 deg with noise, floor and ceiling normals, and
+    clutter at random azimuths (furniture at odd angles)."""
+    rng = np.random.default_rng(seed)
+    th = np.radians(heading_deg + 90.0 * rng.integers(0, 4, n_walls) + noise_deg * rng.standard_normal(n_walls))
+    walls = np.stack([np.cos(th), np.sin(th), 0.02 * rng.standard_normal(n_walls)], 1)
+    c = rng.uniform(-np.pi, np.pi, n_clutter)
+    clutter = np.stack([np.cos(c), np.sin(c), np.zeros(n_clutter)], 1)
+    flat = np.tile([0.0, 0.0, 1.0], (2000, 1))
+    n = np.concatenate([walls, clutter, flat])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("heading", [0.0, 0.3, 30.0, -44.0, 89.7])
+def test_wall_heading_modulo_90_degrees(heading):
+    phi, share = wall_heading(_normals(heading), np.array([0.0, 0.0, 1.0]))
+    assert abs(np.degrees(wrap_quarter(phi - np.radians(heading)))) < 0.05 and share > 0.3
+    # the same walls seen by a camera turned about the vertical: the heading turns with it
+    R = rotation_about([0.0, 0.0, 1.0], np.radians(0.2))
+    phi2, _ = wall_heading(_normals(heading) @ R.T, np.array([0.0, 0.0, 1.0]))
+    assert abs(np.degrees(wrap_quarter(phi2 - phi)) - 0.2) < 0.01
+
+
+def test_wall_heading_needs_walls():
+    flat = np.tile([0.0, 0.0, 1.0], (500, 1))
+    phi, share = wall_heading(flat, np.array([0.0, 0.0, 1.0]))
+    assert np.isnan(phi) and share == 0.0
+
+
+def test_heading_factor_turns_about_up_only():
+    """A node held by nothing but its heading prior turns by the correction about the up axis; its position
+    and its tilt stay (the prior has no information there)."""
+    up = np.array([0.1, -0.2, 1.0])
+    up /= np.linalg.norm(up)
+    P1 = np.eye(4)
+    P1[:3, :3] = rotation_about([1.0, 0.3, 0.0], np.radians(5.0)) @ rotation_about(up, np.radians(40.0))
+    P1[:3, 3] = [3.0, -1.0, 0.5]
+    c = np.radians(0.1)
+    out = solve_batch(np.stack([np.eye(4), P1]), [], 0.1, [heading_factor(1, P1, up, c, np.radians(0.05))])
+    assert np.allclose(out[1][:3, :3], rotation_about(up, c) @ P1[:3, :3], atol=1e-9)
+    assert np.allclose(out[1][:3, 3], P1[:3, 3], atol=1e-9)
+
+
+def test_tracker_reads_a_heading_error_of_its_later_keyframes(loop_seq):
+    """Keyframes tracked over a real room, then every keyframe after the fourth turned by 0.08 degrees about
+    the vertical through the first (what a storey of stairs leaves): the priors ask each of those back by
+    0.08 degrees more than before, the first four as before."""
+    seq = Sequence(loop_seq)
+    p = SlamParams(heading_prior=True, heading_reference=4)
+    tr = Tracker(seq.meta.width, seq.meta.height, p, T_world_first=seq.poses[0])
+    for i in range(24):
+        tr.track(i, seq.depth(i))
+    n = len(tr.keyframes)
+    assert n >= 8
+
+    def corrections():
+        T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
+        priors = tr._heading_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        assert tr.heading["priors"] == len(priors) >= n - 3
+        return np.degrees(tr.heading_corrections)
+
+    before = corrections()
+    assert np.abs(before).max() < 0.2  # the room's walls read within 0.2 degrees under the tracked poses
+    up, o = np.array([0.0, 0.0, 1.0]), tr.keyframes[0].T_world[:3, 3]
+    R = rotation_about(up, np.radians(0.08))
+    for kf in tr.keyframes[4:]:
+        T = kf.T_world.copy()
+        T[:3, :3] = R @ T[:3, :3]
+        T[:3, 3] = R @ (T[:3, 3] - o) + o
+        kf.T_world = T
+    tr.optimisations += 1  # the keyframe arrays are read again
+    after = corrections()
+    assert np.allclose(after[:4], before[:4], atol=1e-3)
+    assert np.allclose(after[4:] - before[4:], -0.08, atol=1e-3)
+    with pytest.raises(ValueError, match="isam2"):
+        SlamParams(heading_prior=True, optimiser="open3d").check()
