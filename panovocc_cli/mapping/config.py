@@ -201,6 +201,9 @@ class MapConfig:
                                    help="With --poses slam: at most K map revisions a frame after a pose-graph "
                                         "optimisation, the largest corrections first, the rest with later frames "
                                         "(0 = every one at once); the final refinement revises all that are left.")
+    heading_prior: bool = option(False, help="With --poses slam: the final refinement holds each keyframe's heading to "
+                                             "the walls it sees (perpendicular walls, modulo 90 deg, as the first "
+                                             "keyframes see them): for buildings, whose stairs turn a floor a little.")
     # a range of the sequence's frames (ids stay the sequence's indices); None = every frame
     frames: str | None = option(None, cli_type=str, parse=parse_frames, metavar="A:B", show_default=False,
                                 help="Map only frames A..B-1 of the sequence (A: to its end; A:B,C:D several "
@@ -236,6 +239,8 @@ class MapConfig:
             del d["frames"]
         if not d["revise_per_frame"]:  # likewise before --revise-per-frame
             del d["revise_per_frame"]
+        if not d["heading_prior"]:  # and before --heading-prior
+            del d["heading_prior"]
         d["format_version"] = FORMAT_VERSION
         return d
 
@@ -249,6 +254,7 @@ class MapConfig:
                        first_pose=d.get("first_pose"),
                        checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
                        revise_per_frame=int(d.get("revise_per_frame", 0)),
+                       heading_prior=bool(d.get("heading_prior", False)),
                        frames=None if d.get("frames") is None else parse_frames(d["frames"]),
                        geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),

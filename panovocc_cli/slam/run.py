@@ -99,6 +99,8 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
     if cfg.revise_per_frame:  # --revise-per-frame K
         params = dataclasses.replace(params or SlamParams(), revise_per_frame=int(cfg.revise_per_frame))
+    if cfg.heading_prior:  # --heading-prior
+        params = dataclasses.replace(params or SlamParams(), heading_prior=True)
     source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)

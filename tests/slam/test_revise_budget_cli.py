@@ -31,3 +31,18 @@ def test_revise_per_frame_needs_poses_slam(short_seq, tmp_path, capsys):
                                     "--revise-per-frame", "2"])
     assert code == 2 and "--revise-per-frame" in err and err.count("\n") == 1, err
     assert not (tmp_path / "m").exists()
+
+
+def test_heading_prior_from_the_command_line(short_seq, tmp_path, capsys):
+    """``--heading-prior`` reaches the tracker (slam.json's params and its heading figures) and config.json;
+    refused without ``--poses slam``."""
+    base = ["--poses", "slam", "--first-pose", "reference", "--segmenter", "none", "--quiet"]
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "h", *base, "--heading-prior"])
+    assert code == 0, err
+    assert json.loads((tmp_path / "h" / "config.json").read_text())["heading_prior"] is True
+    info = json.loads((tmp_path / "h" / "slam.json").read_text())
+    assert info["params"]["heading_prior"] is True and info["heading"]["priors"] >= 1
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "m", "--segmenter", "none", "--quiet",
+                                    "--heading-prior"])
+    assert code == 2 and "--heading-prior" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "m").exists()
