@@ -51,7 +51,9 @@ frame's pose, ``T_world_first``):
    registered again, the graph optimised in one batch (GTSAM's Levenberg-Marquardt with the iSAM2 factors, or
    Open3D's); ``refine_passes`` passes, and optionally one every
    ``refine_every`` keyframes. Every frame it moved by more than ``final_revise_m`` / ``final_revise_deg``
-   is returned as a revision.
+   is returned as a revision. With ``heading_prior`` (off by default; iSAM2 only) the batch solve also holds
+   each keyframe's heading to the walls it sees (:mod:`.heading`, :meth:`Tracker._heading_priors`): a
+   building's stairs turn each floor by a few hundredths of a degree, which no loop sees.
 7. **Bounded store.** Only the ``kf_held`` keyframes used last keep their registration structures; the
    others keep their downsampled points, the structures rebuilt from them (the same bytes) when needed.
    Loop candidates come from a KD-tree over the keyframe positions (:meth:`Tracker._loop_candidates`).
