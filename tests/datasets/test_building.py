@@ -29,8 +29,7 @@ def building():
     return generate_building(SEED)
 
 
-@pytest.fixture(scope="module")
-def raycaster(building):
+def _raycaster(building):
     """Open3D ray casting on the building's mesh, and the class name of each triangle."""
     import open3d as o3d
 
@@ -40,6 +39,11 @@ def raycaster(building):
                      o3d.core.Tensor(faces.astype(np.uint32)))
     names = np.array([canonical_name(c) for c in building["object_classes"]])
     return rs, names[np.repeat(building["face_object"], 2)]
+
+
+@pytest.fixture(scope="module")
+def raycaster(building):
+    return _raycaster(building)
 
 
 def _cast(rs, origins, dirs):
@@ -133,11 +137,14 @@ def test_stairs_are_steps(building, raycaster):
 def test_no_pose_in_or_through_geometry(building, raycaster):
     """Clearance of every pose from walls, furniture, stairs; every step of the walk (consecutive poses) in
     free space, so doors it uses are passable and no wall is crossed."""
+    _assert_walk_clear(raycaster[0], building["T_world_cam"][:, :3, 3])
+
+
+def _assert_walk_clear(rs, P):
+    """Every position of P (n, 3) at least the trajectory's clearance from the mesh, every step between two
+    consecutive ones free of it."""
     import open3d as o3d
 
-    rs, _ = raycaster
-    T = building["T_world_cam"]
-    P = T[:, :3, 3]
     d = rs.compute_distance(o3d.core.Tensor(P.astype(np.float32))).numpy()
     assert d.min() >= CLEARANCE - 0.01
     step = np.diff(P, axis=0)
@@ -231,15 +238,10 @@ def descending():
 def test_descend_walks_back_down_to_the_entrance(descending):
     """``descend``: the same building; the walk goes up floor by floor, then down every flight on the stairs,
     ending on the ground floor where it began (the entrance), clear of geometry at every pose and step."""
-    import open3d as o3d
-
     b, up_only = descending
     for k in ("vertices", "quads", "face_object", "object_classes"):
         assert np.array_equal(np.asarray(b[k]), np.asarray(up_only[k])), k
-    rs = o3d.t.geometry.RaycastingScene()
-    faces = split_polygons(b["quads"])
-    rs.add_triangles(o3d.core.Tensor(b["vertices"].astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
-    names = np.array([canonical_name(c) for c in b["object_classes"]])[np.repeat(b["face_object"], 2)]
+    rs, names = _raycaster(b)
     T = b["T_world_cam"]
     P = T[:, :3, 3]
     level = _floor_of(b, P[:, 2] - CAM_Z[0])
@@ -251,12 +253,7 @@ def test_descend_walks_back_down_to_the_entrance(descending):
     on_stairs = names[prim] == "stair"
     down = np.nonzero(np.diff(level) < 0)[0][0]  # the last pose on the upper floor before the walk goes down
     assert on_stairs[down + 1:down + 11].all() and on_stairs[top:].sum() >= 20  # down the flights
-    d = rs.compute_distance(o3d.core.Tensor(P.astype(np.float32))).numpy()
-    assert d.min() >= CLEARANCE - 0.01
-    step = np.diff(P, axis=0)
-    L = np.linalg.norm(step, axis=1)
-    hit, _ = _cast(rs, P[:-1], step / L[:, None])
-    assert np.all(hit > L)
+    _assert_walk_clear(rs, P)
 
 
 def test_descend_needs_building(tmp_path, capsys):
