@@ -68,7 +68,8 @@ def cloud_normals(points_cam: np.ndarray, radius: float, threads: int = 1) -> np
 
 
 def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
-    """(3, 3) rotation by ``angle`` radians about the unit ``axis`` (Rodrigues)."""
-    k = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    """(3, 3) rotation by ``angle`` radians about ``axis`` (any length; :func:`..geometry.drift.so3_exp`)."""
+    from ..geometry.drift import so3_exp
+
+    k = np.asarray(axis, np.float64)
+    return so3_exp(k / np.linalg.norm(k) * float(angle))

@@ -825,6 +825,7 @@ class Tracker:
         frames, the keyframe store (:meth:`memory`)."""
         return {"keyframes": len(self.keyframes), "keyframe_ids": [k.frame_id for k in self.keyframes],
                 "loop_closures": [list(x) for x in self.loops], "optimisations": self.optimisations,
-                "loops_skipped": self.loops_skipped, "heading": self.heading, "refinements": self.refinements, "keyframe_store": self.memory(),
+                "loops_skipped": self.loops_skipped, "heading": self.heading, "refinements": self.refinements,
+                "keyframe_store": self.memory(),
                 "lost_frames": list(self.lost), "relocalised_frames": list(self.relocalised),
                 "params": dataclasses.asdict(self.params), "stride": self.stride}
