@@ -15,7 +15,10 @@ Every step's output is kept in WORK and reused when present, so a rerun only add
 made before the surface-offset channel P is made again: the face resolution needs it).
 
 Writes ``WORK/jitter.csv`` (scene, depth, sigma_t_mm, sigma_r_deg, spill, resolve, iou, loss = true-pose IoU
-with the same export minus this one) and ``WORK/jitter.md`` (one row per scene, depth and export).
+with the same export minus this one) and ``WORK/jitter.md`` (one row per scene, depth and export). With
+``--grid T1,T2,..:R1,R2,..`` the jitters are every (sigma_t, sigma_r) pair of the two lists (translation and
+rotation apart, the issue's grid) and ``jitter.md`` holds one table per scene, depth and export: a row per
+sigma_t, a column per sigma_r.
 """
 
 from __future__ import annotations
@@ -141,6 +144,32 @@ def markdown(rows, jitters) -> str:
     return "\n".join(lines) + "\n"
 
 
+def grid_markdown(rows, ts, rs) -> str:
+    """One table per scene, depth and export: IoU (loss against the true-pose map) with a row per translation
+    jitter ``ts`` (metres) and a column per rotation jitter ``rs`` (degrees)."""
+    keyed = {}
+    for r in rows:
+        keyed.setdefault((r["scene"], r["depth"], r["spill"], r["resolve"]), {})[(r["sigma_t_mm"], r["sigma_r_deg"])] = r
+    out = []
+    for (scene, depth, k, res), cells in keyed.items():
+        out.append(f"{scene}, {depth} depth, spill {k:g}, resolve {'on' if res else 'off'}:\n")
+        out.append("| σ_t \\ σ_r | " + " | ".join(f"{r:g}°" for r in rs) + " |")
+        out.append("|" + "---|" * (len(rs) + 1))
+        for t in ts:
+            vals = []
+            for rr in rs:
+                c = cells.get((round(t * 1000, 3), rr))
+                vals.append("–" if c is None else f"{c['iou']:.2f}" if not (t or rr) or c["loss"] is None
+                            else f"{c['iou']:.2f} ({'−' if c['loss'] >= 0 else '+'}{abs(c['loss']):.2f})")
+            out.append(f"| {t * 1000:g} mm | " + " | ".join(vals) + " |")
+        out.append("")
+    return "\n".join(out)
+
+
+def _floats(text: str) -> tuple:
+    return tuple(float(v) for v in text.split(","))
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("work", type=Path)
@@ -151,9 +180,22 @@ def main(argv=None) -> None:
     ap.add_argument("--resolve", default="0,1", help="face resolution off (0) and/or on (1) in each export")
     ap.add_argument("--jitters", default=",".join(f"{t}:{r}" for t, r in JITTERS),
                     help="sigma_t_metres:sigma_r_degrees pairs; 0:0 (true poses) must be first")
+    ap.add_argument("--grid", metavar="T1,T2,..:R1,R2,..",
+                    help="every (sigma_t metres, sigma_r degrees) pair of the two lists instead of --jitters; both "
+                         "lists start with 0 (e.g. 0,0.005,0.01,0.02:0,0.05,0.1,0.2)")
     ap.add_argument("--jitter-seed", type=int, default=0, help="seed of traj perturb (default 0)")
     a = ap.parse_args(argv)
-    jitters = tuple(tuple(float(v) for v in j.split(":")) for j in a.jitters.split(","))
+    grid = None
+    if a.grid:
+        try:
+            grid = tuple(_floats(part) for part in a.grid.split(":"))
+        except ValueError:
+            ap.error(f"--grid {a.grid}: expected T1,T2,..:R1,R2,.. (numbers)")
+        if len(grid) != 2 or grid[0][0] != 0 or grid[1][0] != 0:
+            ap.error(f"--grid {a.grid}: expected T1,T2,..:R1,R2,.., each list starting with 0 (the true poses)")
+        jitters = tuple((t, r) for t in grid[0] for r in grid[1])
+    else:
+        jitters = tuple(tuple(float(v) for v in j.split(":")) for j in a.jitters.split(","))
     if jitters[0] != (0.0, 0.0):
         ap.error("--jitters must start with 0:0 (the true-pose map every loss is measured against)")
     exports = [(float(k), int(r)) for k in a.spill.split(",") for r in a.resolve.split(",")]
@@ -171,8 +213,9 @@ def main(argv=None) -> None:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    (a.work / "jitter.md").write_text(markdown(rows, jitters))
-    print(markdown(rows, jitters))
+    md = markdown(rows, jitters) if grid is None else grid_markdown(rows, *grid)
+    (a.work / "jitter.md").write_text(md)
+    print(md)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@ thinning, face resolution), and a jitter list that does not start with the true 
 
 import pytest
 
-from panovocc_cli.benchmark.jitter import main, markdown
+from panovocc_cli.benchmark.jitter import grid_markdown, main, markdown
 
 
 def test_markdown_rows_give_the_loss_against_the_same_export():
@@ -22,4 +22,22 @@ def test_markdown_rows_give_the_loss_against_the_same_export():
 def test_jitters_must_start_with_the_true_poses(tmp_path):
     with pytest.raises(SystemExit) as e:
         main([str(tmp_path / "w"), "--jitters", "0.01:0.1,0:0"])
+    assert e.value.code == 2 and not (tmp_path / "w").exists()
+
+
+def test_grid_markdown_puts_translation_in_rows_and_rotation_in_columns():
+    row = (lambda t, r, iou, loss: {"scene": "home3", "depth": "realistic", "sigma_t_mm": t, "sigma_r_deg": r,  # noqa: E731
+                                    "spill": 0.0, "resolve": 0, "iou": iou, "loss": loss})
+    rows = [row(0.0, 0.0, 73.6, 0.0), row(0.0, 0.1, 72.0, 1.6), row(10.0, 0.0, 71.5, 2.1), row(10.0, 0.1, 71.16, 2.44)]
+    md = grid_markdown(rows, (0.0, 0.01), (0.0, 0.1)).splitlines()
+    assert md[0] == "home3, realistic depth, spill 0, resolve off:"
+    assert md[2] == "| σ_t \\ σ_r | 0° | 0.1° |"
+    assert md[4] == "| 0 mm | 73.60 | 72.00 (−1.60) |"
+    assert md[5] == "| 10 mm | 71.50 (−2.10) | 71.16 (−2.44) |"
+
+
+@pytest.mark.parametrize("grid", ["0.01,0.02:0,0.1", "0,0.01:0.1", "0,0.01", "0,x:0,0.1"])
+def test_a_grid_without_the_true_poses_or_malformed_is_refused(tmp_path, grid):
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "w"), "--grid", grid])
     assert e.value.code == 2 and not (tmp_path / "w").exists()
