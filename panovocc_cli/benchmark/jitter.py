@@ -18,7 +18,8 @@ Writes ``WORK/jitter.csv`` (scene, depth, sigma_t_mm, sigma_r_deg, spill, resolv
 with the same export minus this one) and ``WORK/jitter.md`` (one row per scene, depth and export). With
 ``--grid T1,T2,..:R1,R2,..`` the jitters are every (sigma_t, sigma_r) pair of the two lists (translation and
 rotation apart, the issue's grid) and ``jitter.md`` holds one table per scene, depth and export: a row per
-sigma_t, a column per sigma_r.
+sigma_t, a column per sigma_r; ``jitter.png`` draws the same losses as heat maps (a column per scene and depth, a
+row per export).
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ import dataclasses
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from . import panovocc_command
 
@@ -84,7 +87,7 @@ def _has_offsets(map_dir: Path) -> bool:
     return bool(load_config(map_dir).geometry.offsets)
 
 
-def _ious(map_dir: Path, gt, exports) -> dict:
+def _ious(map_dir: Path, gt, exports, behind: float = 0.0) -> dict:
     """FreeOcc IoU (%) of the map's memory exported with each (spill, resolve) pair."""
     from ..evaluation.metrics import count_pair
     from ..mapping.params import OccupancyParams
@@ -96,7 +99,7 @@ def _ious(map_dir: Path, gt, exports) -> dict:
         base = mapper.config
         for k, r in exports:  # this panovocc's occupancy defaults, whatever the map was made with
             mapper.config = dataclasses.replace(base, occupancy=dataclasses.replace(
-                OccupancyParams(), spill=float(k), resolve=bool(r)))
+                OccupancyParams(), spill=float(k), resolve=bool(r), resolve_behind=float(behind)))
             c = count_pair(mapper.export().grid, gt)["freeocc"]
             out[k, r] = 100.0 * c.tp / max(c.tp + c.fp + c.fn, 1)
         mapper.config = base
@@ -105,7 +108,8 @@ def _ious(map_dir: Path, gt, exports) -> dict:
         mapper.close()
 
 
-def run(work: Path, seeds, house: bool, width: int, exports, jitters, jitter_seed: int, progress=None) -> list:
+def run(work: Path, seeds, house: bool, width: int, exports, jitters, jitter_seed: int, progress=None,
+        behind: float = 0.0) -> list:
     """Rows of the table (dicts), every map made or reused in ``work``; ``exports``: (spill, resolve) pairs."""
     from ..io.grid import read_grid
 
@@ -116,7 +120,7 @@ def run(work: Path, seeds, house: bool, width: int, exports, jitters, jitter_see
         for depth in DEPTHS:
             ref = None
             for jitter in jitters:
-                ious = _ious(_map(work, seqs[depth], name, depth, jitter, jitter_seed), gt, exports)
+                ious = _ious(_map(work, seqs[depth], name, depth, jitter, jitter_seed), gt, exports, behind)
                 ref = ious if jitter == (0.0, 0.0) else ref
                 for k, r in exports:
                     rows.append({"scene": name, "depth": depth, "sigma_t_mm": round(jitter[0] * 1000, 3),
@@ -166,6 +170,41 @@ def grid_markdown(rows, ts, rs) -> str:
     return "\n".join(out)
 
 
+def grid_figure(rows, ts, rs):
+    """A matplotlib Figure of the grid's losses: one heat map per scene and depth (columns) and export (rows),
+    sigma_t down, sigma_r across, each cell the IoU points lost against the true-pose map (one colour scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    cols = list(dict.fromkeys((r["scene"], r["depth"]) for r in rows))
+    kinds = list(dict.fromkeys((r["spill"], r["resolve"]) for r in rows))
+    cell = {(r["scene"], r["depth"], r["spill"], r["resolve"], r["sigma_t_mm"], r["sigma_r_deg"]): r["loss"] for r in rows}
+    vmax = max([abs(r["loss"]) for r in rows if r["loss"] is not None] + [1.0])
+    fig = Figure(figsize=(2.4 * len(cols) + 1.8, 2.3 * len(kinds) + 0.4), constrained_layout=True)
+    axes = fig.subplots(len(kinds), len(cols), squeeze=False)
+    im = None
+    for i, (k, res) in enumerate(kinds):
+        for j, (scene, depth) in enumerate(cols):
+            ax = axes[i, j]
+            z = np.array([[cell.get((scene, depth, k, res, round(t * 1000, 3), rr)) or 0.0 for rr in rs] for t in ts],
+                         dtype=float)
+            im = ax.imshow(z, cmap="magma_r", vmin=0.0, vmax=vmax)
+            for a in range(len(ts)):
+                for b in range(len(rs)):
+                    ax.text(b, a, f"{z[a, b]:.1f}", ha="center", va="center", fontsize=7,
+                            color="white" if z[a, b] > 0.55 * vmax else "black")
+            ax.set_xticks(range(len(rs)), [f"{r:g}°" for r in rs], fontsize=7)
+            ax.set_yticks(range(len(ts)), [f"{t * 1000:g} mm" for t in ts], fontsize=7)
+            if i == 0:
+                ax.set_title(f"{scene}, {depth}", fontsize=9)
+            if j == 0:
+                ax.set_ylabel(f"spill {k:g}, resolve {'on' if res else 'off'}", fontsize=8)
+    fig.colorbar(im, ax=axes, shrink=0.6, label="IoU points lost against true poses")
+    return fig
+
+
 def _floats(text: str) -> tuple:
     return tuple(float(v) for v in text.split(","))
 
@@ -184,6 +223,8 @@ def main(argv=None) -> None:
                     help="every (sigma_t metres, sigma_r degrees) pair of the two lists instead of --jitters; both "
                          "lists start with 0 (e.g. 0,0.005,0.01,0.02:0,0.05,0.1,0.2)")
     ap.add_argument("--jitter-seed", type=int, default=0, help="seed of traj perturb (default 0)")
+    ap.add_argument("--resolve-behind", type=float, default=0.0,
+                    help="the face resolution's resolve_behind in the exports with it (default 0, the mapper's)")
     a = ap.parse_args(argv)
     grid = None
     if a.grid:
@@ -206,7 +247,8 @@ def main(argv=None) -> None:
             print(" ".join(f"{k}={v}" for k, v in r.items()), flush=True)
 
     try:
-        rows = run(a.work, [int(s) for s in a.seeds.split(",")], a.house, a.width, exports, jitters, a.jitter_seed, show)
+        rows = run(a.work, [int(s) for s in a.seeds.split(",")], a.house, a.width, exports, jitters, a.jitter_seed, show,
+                   a.resolve_behind)
     except subprocess.CalledProcessError as e:
         sys.exit(f"error: {' '.join(map(str, e.cmd[2:]))} failed: {e.stderr.decode(errors='replace').strip()}")
     with open(a.work / "jitter.csv", "w", newline="") as f:
@@ -215,6 +257,8 @@ def main(argv=None) -> None:
         w.writerows(rows)
     md = markdown(rows, jitters) if grid is None else grid_markdown(rows, *grid)
     (a.work / "jitter.md").write_text(md)
+    if grid is not None:
+        grid_figure(rows, *grid).savefig(a.work / "jitter.png", dpi=110)
     print(md)
 
 

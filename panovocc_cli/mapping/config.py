@@ -290,6 +290,8 @@ def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticP
             o = dataclasses.replace(o, spill=0.0)
         if "resolve" not in d["occupancy"]:  # made before the face resolution: export as it was made
             o = dataclasses.replace(o, resolve=False)
+        if "resolve_behind" not in d["occupancy"]:  # made before its margin: resolve as it was made
+            o = dataclasses.replace(o, resolve_behind=0.0)
         s = SemanticParams.from_json(d.get("semantic"))
         origin = None if d.get("origin") is None else [float(v) for v in d["origin"]]
     except (KeyError, TypeError, ValueError, AttributeError) as e:

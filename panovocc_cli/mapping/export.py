@@ -171,7 +171,11 @@ def resolve_faces(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: Occupa
     the centre points at the shared face by at least ``resolve_offset`` voxel edges, the two mean positions
     are closer than ``resolve_gap`` times the spread of the frames' mean positions about them (two surfaces a
     centimetre apart, each measured at its own place frame after frame, are kept), and the mean position of
-    the pair's measurements (each voxel's mean weighted by its frames with a measurement) lies in u. Reads
+    the pair's measurements (each voxel's mean weighted by its frames with a measurement) lies in u; when v is
+    the voxel on the cameras' side (u behind it), that mean must lie past the face by ``resolve_behind``
+    standard errors of it (the spread of the frames' positions about it over the root of their number): a
+    surface a millimetre or two from the face is then kept on both sides rather than moved behind itself on
+    the strength of a few frames. Reads
     the base rule's decisions (``occ``), never resolved ones, and the neighbours by key, so a region's
     result does not depend on how the memory is sliced.
 
@@ -179,7 +183,7 @@ def resolve_faces(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: Occupa
     ----------
     keys : (n,) int64; channels : their A, N, F, O and P; occ : (n,) bool, the base rule's decision
     lookup : callable ``(keys, names) -> dict`` of those channels at any voxels (zeros where absent)
-    p : OccupancyParams (``resolve``, ``resolve_normal``, ``resolve_offset``, ``resolve_gap``)
+    p : OccupancyParams (``resolve``, ``resolve_normal``, ``resolve_offset``, ``resolve_gap``, ``resolve_behind``)
 
     Returns
     -------
@@ -210,7 +214,13 @@ def resolve_faces(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: Occupa
             same &= gap <= p.resolve_gap * spread
         # the pair's mean position along the axis, from v's centre, in voxel edges; in u past the face at d/2
         mean = (m_v[f] * off_v[f, axis] + m_u * (sign + off_u[:, axis])) / np.maximum(m_v[f] + m_u, 1.0)
-        lose[f] |= same & (sign * mean > 0.5)
+        margin = 0.0
+        if p.resolve_behind > 0:  # v on the cameras' side, u behind it: lose only when the mean is surely behind
+            front = np.sign(nrm_v[f, axis]) == -sign
+            spread2 = (m_v[f] * (var_v[f, axis] + (off_v[f, axis] - mean) ** 2)
+                       + m_u * (var_u[:, axis] + (sign + off_u[:, axis] - mean) ** 2)) / np.maximum(m_v[f] + m_u, 1.0)
+            margin = np.where(front, p.resolve_behind * np.sqrt(spread2 / np.maximum(m_v[f] + m_u, 1.0)), 0.0)
+        lose[f] |= same & (sign * mean > 0.5 + margin)
     out = occ.copy()
     out[sel[lose]] = False
     return out

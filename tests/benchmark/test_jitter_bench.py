@@ -3,7 +3,7 @@ thinning, face resolution), and a jitter list that does not start with the true 
 
 import pytest
 
-from panovocc_cli.benchmark.jitter import grid_markdown, main, markdown
+from panovocc_cli.benchmark.jitter import grid_figure, grid_markdown, main, markdown
 
 
 def test_markdown_rows_give_the_loss_against_the_same_export():
@@ -41,3 +41,13 @@ def test_a_grid_without_the_true_poses_or_malformed_is_refused(tmp_path, grid):
     with pytest.raises(SystemExit) as e:
         main([str(tmp_path / "w"), "--grid", grid])
     assert e.value.code == 2 and not (tmp_path / "w").exists()
+
+
+def test_grid_figure_draws_one_heat_map_per_scene_and_export_with_the_losses():
+    rows = [{"scene": s, "depth": "clean", "sigma_t_mm": t, "sigma_r_deg": r, "spill": 0.0, "resolve": 0,
+             "iou": 80.0, "loss": 0.0 if not (t or r) else 1.0 + t + 10 * r}
+            for s in ("home2", "home3") for t in (0.0, 10.0) for r in (0.0, 0.1)]
+    fig = grid_figure(rows, (0.0, 0.01), (0.0, 0.1))
+    maps = [ax for ax in fig.axes if ax.images]
+    assert len(maps) == 2 and [ax.get_title() for ax in maps] == ["home2, clean", "home3, clean"]
+    assert [t.get_text() for t in maps[0].texts] == ["0.0", "2.0", "11.0", "12.0"]
