@@ -2,16 +2,16 @@
 "Pose jitter": a floor a millimetre from a voxel face).
 
     python scripts/jitter_face_distance.py WORK [--seed 5] [--mm -1,0,0.5,1,2,4,8,16,24] [--jitter 0.01:0.1]
-                                                [--resolve-behind Z]
+                                                [--resolve-behind Z] [--frames 60]
 
-One home (``synth --seed S``) placed at its seeded x, y offset and at z = 0.8 m + d for each d in ``--mm``
-(millimetres: the floor d above a face of the 8 cm lattice; negative: below one), its mesh ground truth,
-a clean render at 512x256, and two maps with ``--offsets``: true poses and the poses jittered by
+One home (``synth --seed S --frames N``, 60 by default) placed at its seeded x, y offset and at z = 0.8 m + d
+for each d in ``--mm`` (millimetres: the floor d above a face of the 8 cm lattice; negative: below one), its
+mesh ground truth, a clean render at 512x256, and two maps with ``--offsets``: true poses and the poses jittered by
 ``--jitter`` (``traj perturb --jitter T --rot-jitter-deg R --seed 0``). Each map is exported with the
 default occupancy and with ``--spill 0.3 --resolve`` (``--resolve-behind Z``: that margin instead of
 the default's) and scored like ``panovocc eval`` (FreeOcc IoU).
-Prints and writes ``WORK/face_distance_behindZ.csv``: d, the ceiling's distance from the nearest face, and per export
-the true-pose IoU, the jittered IoU and the loss. Every step's output is kept in WORK and reused.
+Prints and writes ``WORK/face_distance_behindZ_fN.csv``: d, the ceiling's distance from the nearest face, and
+per export the true-pose IoU, the jittered IoU and the loss. Every step's output is kept in WORK and reused.
 """
 
 from __future__ import annotations
@@ -57,18 +57,19 @@ def main(argv=None) -> None:
     ap.add_argument("--mm", default="-1,0,0.5,1,2,4,8,16,24")
     ap.add_argument("--jitter", default="0.01:0.1", help="sigma_t metres:sigma_r degrees")
     ap.add_argument("--resolve-behind", type=float, default=OccupancyParams().resolve_behind)
+    ap.add_argument("--frames", type=int, default=60, help="frames of the home's walk (synth --frames)")
     a = ap.parse_args(argv)
     t, r = (float(v) for v in a.jitter.split(":"))
     a.work.mkdir(parents=True, exist_ok=True)
     x, y, _ = lattice_offset(a.seed)
-    hc = float(generate_scene(a.seed, None, 60, (0.0, 0.0, 0.0))["ceiling_height"])
+    hc = float(generate_scene(a.seed, None, a.frames, (0.0, 0.0, 0.0))["ceiling_height"])
     rows = []
     for d in (float(v) for v in a.mm.split(",")):
         z = 0.8 + d / 1000.0
-        tag = f"s{a.seed}_d{d:g}mm"
+        tag = f"s{a.seed}_d{d:g}mm" + (f"_f{a.frames}" if a.frames != 60 else "")
         scene, gt_path, seq = a.work / tag, a.work / f"{tag}.gt.npz", a.work / f"{tag}.clean"
         if not scene.exists():
-            _run("synth", scene, "--seed", a.seed, "--offset", f"{x:.3f},{y:.3f},{z:.4f}")
+            _run("synth", scene, "--seed", a.seed, "--frames", a.frames, "--offset", f"{x:.3f},{y:.3f},{z:.4f}")
         if not gt_path.exists():
             _run("gt", scene, gt_path)
         if not seq.exists():
@@ -88,10 +89,11 @@ def main(argv=None) -> None:
         row = {"floor_mm": d, "ceiling_mm": round(1000 * min(ceil, H - ceil), 1)}
         for label, spill, resolve in EXPORTS:
             i0, i1 = (_iou(maps[k], gt, spill, resolve, a.resolve_behind) for k in ("true", "jitter"))
-            row.update({f"{label}: true": round(i0, 2), f"{label}: jitter": round(i1, 2), f"{label}: loss": round(i0 - i1, 2)})
+            row.update({f"{label}: true": round(i0, 2), f"{label}: jitter": round(i1, 2),
+                        f"{label}: loss": round(i0 - i1, 2)})
         rows.append(row)
         print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
-    with open(a.work / f"face_distance_behind{a.resolve_behind:g}.csv", "w", newline="") as f:
+    with open(a.work / f"face_distance_behind{a.resolve_behind:g}_f{a.frames}.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
