@@ -3,7 +3,8 @@ thinning and the face resolution.
 
     python -m panovocc_cli.benchmark.jitter WORK [--seeds 2,3,4] [--house] [--spill 0,0.2] [--resolve 0,1] ...
 
-For each home ``panovocc synth sK --seed K`` (``--house``: ``--house --seed K --frames 150``): its mesh ground
+For each home ``panovocc synth sK --seed K`` (``--house``: ``--house --seed K --frames 150``; ``--frames N``: N
+poses of the same walk instead, the scene named ``homeK.fN``): its mesh ground
 truth (``panovocc gt``), a clean and a realistic-noise render (``panovocc render --width W [--noise realistic
 --seed K]``), and for each jitter (sigma_t metres, sigma_r degrees) a jittered copy of the true poses
 (``panovocc traj perturb SEQ/poses.txt P --jitter T --rot-jitter-deg R --seed S``) mapped as the CLI maps
@@ -44,12 +45,13 @@ def _panovocc(*args) -> None:
                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
 
-def _scene(work: Path, seed: int, house: bool, width: int) -> tuple[str, Path, dict]:
+def _scene(work: Path, seed: int, house: bool, width: int, frames: int | None = None) -> tuple[str, Path, dict]:
     """Name, ground truth and the two renders of one scene (made when missing)."""
-    name = f"{'house' if house else 'home'}{seed}"
+    name = f"{'house' if house else 'home'}{seed}" + (f".f{frames}" if frames else "")
     scene, gt = work / name, work / f"{name}.gt.npz"
     if not scene.exists():
-        _panovocc("synth", scene, "--seed", seed, *(["--house", "--frames", 150] if house else []))
+        n = frames or (150 if house else None)
+        _panovocc("synth", scene, "--seed", seed, *(["--house"] if house else []), *(["--frames", n] if n else []))
     if not gt.exists():
         _panovocc("gt", scene, gt)
     seqs = {}
@@ -109,13 +111,13 @@ def _ious(map_dir: Path, gt, exports, behind: float = 0.0) -> dict:
 
 
 def run(work: Path, seeds, house: bool, width: int, exports, jitters, jitter_seed: int, progress=None,
-        behind: float = 0.0) -> list:
+        behind: float = 0.0, frames: int | None = None) -> list:
     """Rows of the table (dicts), every map made or reused in ``work``; ``exports``: (spill, resolve) pairs."""
     from ..io.grid import read_grid
 
     rows = []
     for seed in seeds:
-        name, gt_path, seqs = _scene(work, seed, house, width)
+        name, gt_path, seqs = _scene(work, seed, house, width, frames)
         gt = read_grid(gt_path)
         for depth in DEPTHS:
             ref = None
@@ -214,6 +216,8 @@ def main(argv=None) -> None:
     ap.add_argument("work", type=Path)
     ap.add_argument("--seeds", default="2,3,4", help="scene seeds, comma-separated (default 2,3,4)")
     ap.add_argument("--house", action="store_true", help="houses (synth --house --frames 150) instead of homes")
+    ap.add_argument("--frames", type=int, default=None,
+                    help="poses of each scene's walk (synth --frames; default 60 for homes, 150 for houses)")
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--spill", default="0,0.3", help="spill thinning values to export with (0 = off)")
     ap.add_argument("--resolve", default="0,1", help="face resolution off (0) and/or on (1) in each export")
@@ -248,7 +252,7 @@ def main(argv=None) -> None:
 
     try:
         rows = run(a.work, [int(s) for s in a.seeds.split(",")], a.house, a.width, exports, jitters, a.jitter_seed, show,
-                   a.resolve_behind)
+                   a.resolve_behind, a.frames)
     except subprocess.CalledProcessError as e:
         sys.exit(f"error: {' '.join(map(str, e.cmd[2:]))} failed: {e.stderr.decode(errors='replace').strip()}")
     with open(a.work / "jitter.csv", "w", newline="") as f:
