@@ -173,9 +173,9 @@ def resolve_faces(keys: np.ndarray, channels, occ: np.ndarray, lookup, p: Occupa
     centimetre apart, each measured at its own place frame after frame, are kept), and the mean position of
     the pair's measurements (each voxel's mean weighted by its frames with a measurement) lies in u; when v is
     the voxel on the cameras' side (u behind it), that mean must lie past the face by ``resolve_behind``
-    standard errors of it (the spread of the frames' positions about it over the root of their number): a
-    surface a millimetre or two from the face is then kept on both sides rather than moved behind itself on
-    the strength of a few frames. Reads
+    standard errors of it (the spread of the frames' positions about it over the root of their number; 0 by
+    default): with it a surface a millimetre or two from the face stays on both sides rather than move behind
+    itself on the strength of a few frames. Reads
     the base rule's decisions (``occ``), never resolved ones, and the neighbours by key, so a region's
     result does not depend on how the memory is sliced.
 

@@ -112,9 +112,9 @@ class OccupancyParams:
                                      "no such test).")
     resolve_behind: float = option(0.0, min=0,
                                    help="Face resolution: a voxel on the cameras' side of the pair loses to the one "
-                                        "behind it only when the pair's mean position lies behind the face by at least "
-                                        "this many standard errors of that mean (0 = by any amount; tried at 1 and not kept: "
-                                        "docs/slam.md, \"Pose jitter\").")
+                                        "behind it only when the pair's mean position lies behind the face by at "
+                                        "least this many standard errors of that mean (0 = by any amount; 1 was tried "
+                                        "and not kept: docs/slam.md, \"Translation and rotation apart\").")
     spill_support: float = option(0.7, min=0,
                                   help="Spill thinning: a spill's support per hit frame A/N is at least this times "
                                        "its neighbour's (a voxel a surface only clips is kept).")
