@@ -247,23 +247,26 @@ def test_a_map_made_before_the_channel_or_the_rule_reads_without_them(tmp_path):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_incremental_export_with_the_resolution_equals_a_full_one(monkeypatch, seed):
+@pytest.mark.parametrize("behind", [0.0, 1.0])
+def test_incremental_export_with_the_resolution_equals_a_full_one(monkeypatch, seed, behind):
     """A voxel's resolution reads its face neighbours, so a change at one voxel can take or restore the
-    next: the incremental export (previous grid + changed keys) equals the full one bit for bit."""
+    next: the incremental export (previous grid + changed keys) equals the full one bit for bit (with the
+    cameras' side margin too)."""
     monkeypatch.setattr(export, "BLOCK", 4)
+    on = dataclasses.replace(ON, resolve_behind=behind)
     keys, ch, sets = _scene()
     n = len(keys)
     ch, vocab, sem = random_semantic_channels(ch, n, seed)
     rng = np.random.default_rng(seed + 100)
-    before = export_memory(keys, ch, H, ON, vocab, sem)
+    before = export_memory(keys, ch, H, on, vocab, sem)
     # a few surface voxels lose their evidence of lying near the face: the spill beside them comes back
     surf = np.flatnonzero(np.isin(keys, sets["smear_surface"]))
     pick = rng.choice(surf, 6, replace=False)
     ch2 = {c: v.copy() for c, v in ch.items()}
     ch2["P"][pick, 1] = 0  # their x offsets now at the centre
-    full = export_memory(keys, ch2, H, ON, vocab, sem)
+    full = export_memory(keys, ch2, H, on, vocab, sem)
     assert not np.array_equal(full.occupied_keys, before.occupied_keys)
-    inc = export_memory(keys, ch2, H, ON, vocab, sem, previous=before.grid, changed_keys=keys[pick])
+    inc = export_memory(keys, ch2, H, on, vocab, sem, previous=before.grid, changed_keys=keys[pick])
     assert np.array_equal(inc.occupied_keys, full.occupied_keys)
     assert inc.grid.labels.tobytes() == full.grid.labels.tobytes()
 
