@@ -49,7 +49,7 @@ class TrajEvalConfig:
 @dataclass
 class TrajPerturbConfig:
     """``panovocc traj perturb``: a seeded perturbed copy of a trajectory (geometry/drift.py's models): drift
-    along the path, then per-frame jitter."""
+    along the path, then per-frame jitter, then a rigid offset of every position."""
 
     gt: str = option(cli_type=Path, parse=str, argument=True, metavar="GT",
                      help="Trajectory to perturb (TUM or NICE-SLAM form).")
@@ -67,6 +67,16 @@ class TrajPerturbConfig:
                                                              "each frame's own rotation error, degrees.")
     seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED,
                        help="Seed of the drift and the jitter; the same seed gives the same file.")
+    offset: tuple[float, float, float] | None = option(
+        None, cli_type=str, parse=lambda text: _parse_offset(text), metavar="X,Y,Z",
+        help="X,Y,Z metres added to every camera position after the drift and the jitter: the whole trajectory "
+             "moved rigidly (where a map of it sits against the voxel lattice).")
+
+
+def _parse_offset(text: str) -> tuple[float, float, float]:
+    from ..datasets.synth import parse_offset
+
+    return parse_offset(text)
 
 
 def associate(stamps_est, stamps_ref, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
@@ -156,6 +166,8 @@ def run_traj_perturb(cfg: TrajPerturbConfig, overwrite: bool = False) -> dict:
     D = drift_trajectory(T, trans_m_per_sqrt_frame=cfg.drift, trans_m_per_m=cfg.drift_per_m,
                          rot_deg_per_frame=cfg.rot_drift_deg, seed=cfg.seed)
     D = jitter_trajectory(D, trans_m=cfg.jitter, rot_deg=cfg.rot_jitter_deg, seed=cfg.seed)
+    if cfg.offset is not None:
+        D[:, :3, 3] += np.asarray(cfg.offset, np.float64)
     if str(cfg.out).lower().endswith(".tum"):
         write_tum(cfg.out, D, timestamps=t)
     else:

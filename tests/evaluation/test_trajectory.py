@@ -139,6 +139,29 @@ def test_traj_perturb_then_eval_command_line(tmp_path, capsys):
     assert (tmp_path / "top.png").stat().st_size > 1000 and (tmp_path / "top.config.json").is_file()
 
 
+
+def test_traj_perturb_offset_moves_every_position_and_nothing_else(tmp_path, capsys):
+    """--offset X,Y,Z: every camera position moved by the same vector, the rotations untouched, after any
+    jitter; a malformed offset is refused with exit 2 and nothing written."""
+    from panovocc_cli.geometry.drift import jitter_trajectory
+
+    T = _helix(30)
+    write_poses(tmp_path / "gt.txt", T)
+    code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "o.txt", "--offset",
+                                    "0.001,0,-0.002"])
+    assert code == 0, err
+    _, D, _ = read_trajectory(tmp_path / "o.txt")
+    assert np.allclose(D[:, :3, :3], T[:, :3, :3], atol=1e-12)
+    assert np.allclose(D[:, :3, 3] - T[:, :3, 3], [0.001, 0.0, -0.002], atol=1e-9)
+    code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "oj.txt", "--jitter", "0.01",
+                                    "--seed", "3", "--offset", "0.5,0.5,0.5"])
+    assert code == 0, err
+    J = jitter_trajectory(T, trans_m=0.01, rot_deg=0.0, seed=3)
+    assert np.allclose(read_trajectory(tmp_path / "oj.txt")[1][:, :3, 3] - J[:, :3, 3], 0.5, atol=1e-9)
+    for bad in ("1,2", "1,2,x", "1,2,nan"):
+        code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "bad.txt", "--offset", bad])
+        assert code == 2 and "--offset" in err and not (tmp_path / "bad.txt").exists()
+
 def test_traj_perturb_jitter_command_line(tmp_path, capsys):
     """--jitter / --rot-jitter-deg: per-frame noise on top of the drift, seeded; ATE near the jitter's sigma."""
     import json
