@@ -38,7 +38,7 @@ def wall_heading(normals_world: np.ndarray, up: np.ndarray) -> tuple[float, floa
     if len(n) < 50:
         return float("nan"), 0.0
     th = np.arctan2(n @ e2, n @ e1)
-    phi = float(np.angle(np.exp(4j * th).sum()) / 4)
+    phi = quarter_mean(th)
     inside = np.ones(len(th), bool)
     for cut in np.radians(TRIMS_DEG):
         r = wrap_quarter(th - phi)
@@ -47,6 +47,11 @@ def wall_heading(normals_world: np.ndarray, up: np.ndarray) -> tuple[float, floa
             return float("nan"), 0.0
         phi = float(wrap_quarter(phi + r[inside].mean()))
     return phi, float(inside.mean())
+
+
+def quarter_mean(a) -> float:
+    """The circular mean of angles (radians) modulo 90 degrees (the mean direction of 4a, over 4)."""
+    return float(np.angle(np.exp(4j * np.asarray(a, np.float64)).sum()) / 4)
 
 
 def wrap_quarter(a):

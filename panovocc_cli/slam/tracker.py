@@ -742,7 +742,7 @@ class Tracker:
         ``heading_reference`` keyframes'; a keyframe within ``heading_max_deg`` of it whose normals agree
         (``heading_min_share``) gets :func:`.posegraph.heading_factor` turning it onto the reference. Its
         figures go to :attr:`heading` (keyframes with a prior, the corrections' median and largest, degrees)."""
-        from .heading import cloud_normals, wall_heading, wrap_quarter
+        from .heading import cloud_normals, quarter_mean, wall_heading, wrap_quarter
         from .posegraph import heading_factor
 
         p = self.params
@@ -761,7 +761,7 @@ class Tracker:
         self.heading = {"priors": 0, "median_deg": 0.0, "max_deg": 0.0}
         if len(ref) == 0:
             return []
-        phi_ref = float(np.angle(np.exp(4j * ref).sum()) / 4)
+        phi_ref = quarter_mean(ref)
         c = wrap_quarter(phi_ref - phi)  # nan where no heading
         self.heading_corrections = c
         ok = np.isfinite(c) & (share >= p.heading_min_share) & (np.abs(np.nan_to_num(c, nan=np.inf))
