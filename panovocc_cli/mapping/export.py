@@ -453,6 +453,11 @@ class MapExport:
 SEMANTIC_INPUTS = ("E", "S", "normal_sum", "rgb_sum", "count")
 """The stored channels GSC's inputs are made of (:func:`gsc_inputs`)."""
 
+UNARY_ROWS = 8192
+"""Rows :func:`gsc_inputs` turns into unaries at a time: the float64 temporaries (several (n, C) arrays) are a
+chunk's, not a GSC cube's (a cube of the house held 46 k rows: 13 MB of them at the export's peak, docs/mapping.md
+"The house's peak, fifth pass")."""
+
 
 def gsc_inputs(channels, g: np.ndarray, rows: np.ndarray) -> tuple:
     """:func:`~panovocc_cli.semantics.gsc.consolidate`'s inputs ``(p, S, g, normals, colors)`` of the occupied
@@ -460,7 +465,12 @@ def gsc_inputs(channels, g: np.ndarray, rows: np.ndarray) -> tuple:
     score ``g`` (all occupied voxels'): per-voxel values, the same whichever rows are read together."""
     c = channels.rows(rows, SEMANTIC_INPUTS)
     S = c["S"][:, 0] / S_SCALE
-    p, normals, colors = unaries(c["E"] / S_SCALE, S, c["normal_sum"] / NORMAL_STEPS, c["rgb_sum"], c["count"][:, 0])
+    n, C = c["E"].shape
+    p, normals, colors = np.empty((n, C), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    for a in range(0, n, UNARY_ROWS):  # row by row the same values: only the float64 temporaries are a chunk's
+        r = slice(a, a + UNARY_ROWS)
+        p[r], normals[r], colors[r] = unaries(c["E"][r] / S_SCALE, S[r], c["normal_sum"][r] / NORMAL_STEPS,
+                                              c["rgb_sum"][r], c["count"][r, 0])
     return p, S, np.asarray(g, np.float64)[rows], normals, colors
 
 

@@ -87,6 +87,31 @@ def test_incremental_export_equals_a_full_one(monkeypatch, block):
         _export(keys, ch2, previous=full.grid)
 
 
+@pytest.mark.parametrize("chunk", [1, 7, 1000])
+def test_gsc_inputs_made_a_chunk_at_a_time_are_the_whole_cubes(monkeypatch, chunk):
+    """GSC's inputs made :data:`export.UNARY_ROWS` rows at a time equal, bit for bit, the unaries of every row of
+    the cube at once (the one expression they were made by before), whatever the chunk (one row, a chunk that
+    does not divide the rows, more than the rows): rows with S = 0, count = 0 and zero normals included."""
+    from panovocc_cli.mapping.contributors import NORMAL_STEPS, S_SCALE
+    from panovocc_cli.semantics.gsc import unaries
+
+    keys, ch = _memory(3)
+    ch["normal_sum"][::5] = 0
+    g = np.random.default_rng(2).random(len(keys))
+    rows = np.flatnonzero(np.random.default_rng(4).random(len(keys)) < 0.6)
+    oc = export.OccupiedChannels(ch, np.arange(len(keys)))
+    c = {k: v[rows] for k, v in ch.items()}
+    want = unaries(c["E"] / S_SCALE, c["S"][:, 0] / S_SCALE, c["normal_sum"] / NORMAL_STEPS, c["rgb_sum"],
+                   c["count"][:, 0])
+    monkeypatch.setattr(export, "UNARY_ROWS", chunk)
+    p, S, gg, normals, colors = export.gsc_inputs(oc, g, rows)
+    assert (c["S"] == 0).any() and (c["count"] == 0).any() and np.isnan(colors).any()
+    for got, exp in ((p, want[0]), (normals, want[1]), (colors, want[2])):
+        assert got.dtype == exp.dtype and got.shape == exp.shape
+        assert np.array_equal(got.view(np.uint32), exp.view(np.uint32))  # NaN payloads too
+    assert np.array_equal(S, c["S"][:, 0] / S_SCALE) and np.array_equal(gg, g[rows])
+
+
 def test_previous_labels_read_back_the_grid():
     keys, ch = _memory()
     ex = _export(keys, ch)
