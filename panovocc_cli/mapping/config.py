@@ -187,7 +187,8 @@ class MapConfig:
                                     "default SEQ/poses.txt.")
     poses_align: str = option("none", choices=("none", "se3", "sim3"),
                               help="Align the --poses file to a reference trajectory first (Umeyama): none | se3 | "
-                                   "sim3.")
+                                   "sim3. With --poses slam: se3 fits the final poses to the reference and moves "
+                                   "every frame there (the map in the reference's world).")
     poses_reference: str | None = option(None, cli_type=Path, parse=str,
                                          help="Reference trajectory of --poses-align and of --first-pose reference; "
                                               "default SEQ/poses.txt.")

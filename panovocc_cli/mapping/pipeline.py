@@ -271,13 +271,28 @@ def run_poses(cfg: MapConfig) -> np.ndarray | None:
     return poses
 
 
+def _move_unplaced(mapper: Mapper, frames, unplaced: list, A: np.ndarray) -> None:
+    """``--poses slam --poses-align se3``: the frames the tracker could not place (empty observations at the last
+    placed frame's pose) follow the rigid motion ``A`` the placed ones were moved by, still empty (a frame without
+    depth), so that ``poses.txt`` is in one world. Nothing to do while ``A`` is the identity."""
+    if np.array_equal(A, np.eye(4)):
+        return
+    for fid in unplaced:
+        frame = frames.read(fid)
+        mapper.revise(fid, A @ mapper.pose(fid), dataclasses.replace(frame, depth=np.zeros_like(frame.depth)))
+
+
 def slam_first_poses(cfg: MapConfig, n: int) -> np.ndarray:
     """The world of a ``--poses slam`` run: (n, 4, 4) float64, the pose each frame gets should it be the first
     the front end places (the tracker's ``T_world_first``; also the run's placeholder poses, from which the
     map's origin is chosen). ``--first-pose FILE``: that file's one pose (:func:`~..io.poses.read_first_pose`)
-    for every frame; ``--first-pose reference``: the reference trajectory's poses (``--poses-reference``,
-    default SEQ/poses.txt, read as ``--poses-align`` reads it); none: identity (the tracker then levels the
-    first frame at the origin, :data:`~..slam.tracker.LEVEL_FIRST`)."""
+    for every frame; ``--first-pose reference`` and ``--poses-align se3``: the reference trajectory's poses
+    (``--poses-reference``, default SEQ/poses.txt, read as ``--poses-align`` reads it: the run starts in the
+    reference's world, which the final fit then corrects by millimetres, so a reference far from the world
+    origin keeps the map's keys in range); none: identity (the tracker then levels the first frame at the
+    origin, :data:`~..slam.tracker.LEVEL_FIRST`)."""
+    if cfg.first_pose is None and cfg.poses_align == "se3":
+        return frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
     if cfg.first_pose is None:
         return np.tile(np.eye(4), (n, 1, 1))
     if cfg.first_pose == FIRST_POSE_REFERENCE:
@@ -563,11 +578,16 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.first_pose is not None and cfg.poses != POSES_SLAM:
             raise PanovoccError("--first-pose sets the world of --poses slam; a pose file's world is its own (move it "
                                 "into a reference's with --poses-align se3)")
-        if cfg.poses == POSES_SLAM and (cfg.poses_align != "none" or (
-                cfg.poses_reference is not None and cfg.first_pose != FIRST_POSE_REFERENCE)):
-            raise PanovoccError("--poses-align / --poses-reference align a pose file; with --poses slam align "
-                                "afterwards (traj eval, or map --poses OUT/poses.txt --poses-align se3), or start "
-                                "the SLAM world at the reference's first pose (--first-pose reference)")
+        if cfg.poses == POSES_SLAM and cfg.poses_align == "sim3":
+            raise PanovoccError("--poses slam --poses-align sim3: the front end's poses are metric (they come from the "
+                                "depth), and a scale fitted to the reference would move the frames but not scale "
+                                "their depth; use --poses-align se3")
+        if cfg.poses == POSES_SLAM and cfg.poses_align != "none" and cfg.first_pose is not None:
+            raise PanovoccError("--first-pose and --poses-align both set the world of --poses slam: give one")
+        if cfg.poses == POSES_SLAM and cfg.poses_align == "none" and (
+                cfg.poses_reference is not None and cfg.first_pose != FIRST_POSE_REFERENCE):
+            raise PanovoccError("--poses-reference with --poses slam is the reference of --poses-align se3 (the "
+                                "final poses fitted to it) or of --first-pose reference: give one of them")
         if cfg.poses == POSES_SLAM and cfg.frames is not None:
             raise PanovoccError("--frames maps a part of a sequence with known poses; --poses slam tracks the whole "
                                 "sequence from its first frame")
@@ -650,6 +670,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if times is not None:
                 times.append((i, time.perf_counter() - t0, time.process_time() - c0, 1e3 * t_frame, int(ck),
                               resident_mb()))
+        if unplaced and getattr(online, "alignment", None) is not None:
+            _move_unplaced(mapper, frames, unplaced, online.alignment)
         counted = shards is not None and hasattr(shards, "progress")  # the driver moves the bar as frames are done
         if counted:
             shards.progress = bar

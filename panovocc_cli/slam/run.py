@@ -18,8 +18,14 @@ map's own files it writes::
 ``--first-pose FILE|reference`` (``MapConfig.first_pose``) the first placed frame gets that pose as it is (no
 levelling on top: the pose already says where the camera looks and which way is up) and every frame follows,
 ``T_world_cam(i) = T_first · T_slam(k)⁻¹ · T_slam(i)`` (k the first placed frame): the map is in the file's
-or the reference's world. The sequence's own poses (SEQ/poses.txt) are never read, except as the default
-reference of ``--first-pose reference``.
+or the reference's world. With ``--poses-align se3`` (``MapConfig.poses_align``) the run starts as with
+``--first-pose reference`` (the first placed frame at the reference's pose), and after the final refinement the
+placed frames' poses are fitted to the reference trajectory's (``--poses-reference``, default SEQ/poses.txt) by
+one rigid motion (Umeyama, SE(3), over every placed frame) and every placed frame is revised to its fitted pose:
+the map, ``poses.txt`` and ``trajectory.tum`` are in the reference's world, placed by the whole trajectory rather
+than by its first pose (what a capture whose own poses carry per-frame noise wants: docs/slam.md, "The front end
+placed by a noisy trajectory"). The sequence's own poses (SEQ/poses.txt) are never read, except as the default
+reference of ``--first-pose reference`` and ``--poses-align se3``.
 """
 
 from __future__ import annotations
@@ -45,9 +51,13 @@ class SlamPoses:
         ``seq.poses``, the placeholders :func:`~..mapping.pipeline.slam_first_poses` gave the sequence.
     """
 
-    def __init__(self, params: SlamParams | None = None, first_pose: str | None = None, frames: str | None = None):
+    def __init__(self, params: SlamParams | None = None, first_pose: str | None = None, frames: str | None = None,
+                 align: bool = False):
         self.params = params or SlamParams()
         self.first_pose = first_pose
+        self.align = bool(align)  # --poses-align se3: the sequence's placeholder poses are the reference's
+        self.align_to: np.ndarray | None = None  # (n, 4, 4), the reference, once bound
+        self.alignment = np.eye(4)  # the rigid motion applied to the tracker's poses (identity until the last frame)
         self.frames = frames  # the run's --frames (its last frame ends the sequence: the final refinement)
         self.last: int | None = None
         self.tracker: Tracker | None = None
@@ -57,8 +67,10 @@ class SlamPoses:
 
     def __call__(self, seq_or_index, frame=None):
         if frame is None:  # bind to a sequence
+            anchored = self.first_pose is not None or self.align  # the placeholders hold a world to start in
             self.tracker = Tracker(seq_or_index.meta.width, seq_or_index.meta.height, self.params,
-                                   T_world_first=None if self.first_pose is None else seq_or_index.poses)
+                                   T_world_first=seq_or_index.poses if anchored else None)
+            self.align_to = np.asarray(seq_or_index.poses, np.float64) if self.align else None
             ids = frame_ids(self.frames, len(seq_or_index))
             self.last = int(ids[-1]) if len(ids) else None
             return self
@@ -67,10 +79,31 @@ class SlamPoses:
         T, revisions = step.T_world_cam, step.revisions
         if step.frame_id == self.last:  # the end of the sequence: the final refinement moves earlier frames
             T, revisions = finish(self.tracker, step.frame_id, T, revisions)
+            if self.align_to is not None:
+                T, revisions = self._aligned(step.frame_id, T)
         self.revisions += len(revisions)
         if step.loops and self.on_loops is not None:
             self.on_loops(step.frame_id, step.loops)
         return T, revisions
+
+
+    def _aligned(self, fid: int, T) -> tuple:
+        """After the final refinement: the rigid motion that fits the placed frames' final poses to ``align_to``'s
+        (:func:`~..evaluation.trajectory.align_trajectory`, SE(3)), kept in :attr:`alignment`; returns the last
+        frame's pose and every other placed frame's fitted pose as revisions (each placed frame moves)."""
+        from ..evaluation.trajectory import align_trajectory
+
+        committed = self.tracker.committed()
+        if not committed:
+            return T, []
+        ids = sorted(committed)
+        _, R, t, _ = align_trajectory(np.stack([committed[i] for i in ids]), self.align_to[ids], "se3")
+        self.alignment = np.eye(4)
+        self.alignment[:3, :3], self.alignment[:3, 3] = R, t
+        moved = {i: self.alignment @ committed[i] for i in ids}
+        if T is not None:
+            T = moved.pop(fid)
+        return T, sorted(moved.items())
 
 
 def finish(tracker: Tracker, fid: int, T, revisions: list) -> tuple:
@@ -101,21 +134,31 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
         params = dataclasses.replace(params or SlamParams(), revise_per_frame=int(cfg.revise_per_frame))
     if cfg.heading_prior:  # --heading-prior
         params = dataclasses.replace(params or SlamParams(), heading_prior=True)
-    source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames)
+    source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames,
+                       align=cfg.poses_align == "se3" and cfg.first_pose is None)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)
     summary["slam"] = _write_slam_outputs(
         Path(summary["out"]), source.tracker, frames=summary["frames"], revisions=source.revisions,
         unplaced_frames=summary.get("unplaced_frames", []), track_ms_per_frame=summary.get("track_ms_per_frame"),
-        lost_reasons={str(f): r for f, s, _, r in source.steps if r}, first_pose=cfg.first_pose)
+        lost_reasons={str(f): r for f, s, _, r in source.steps if r}, first_pose=cfg.first_pose,
+        aligned_to=None if source.align_to is None else _reference_name(cfg), alignment=source.alignment)
     return summary
 
 
-def world_of(tracker: Tracker, first_pose: str | None) -> dict:
+def _reference_name(cfg: MapConfig) -> str:
+    return str(cfg.poses_reference) if cfg.poses_reference is not None else str(Path(cfg.seq) / "poses.txt")
+
+
+
+def world_of(tracker: Tracker, first_pose: str | None, aligned_to: str | None = None,
+             alignment: np.ndarray | None = None) -> dict:
     """slam.json's ``world``: ``first_pose`` (the ``--first-pose`` given: a file's path, ``reference``, or None
     for the levelled first frame), ``first_frame`` (the first placed frame, None when none was) and
     ``T_world_first`` (its pose, 4 rows of 4; the pose graph keeps it fixed) and a sentence ``frame``."""
-    if first_pose is None:
+    if aligned_to is not None:
+        words = f"the reference trajectory's world ({aligned_to}): the final poses fitted to it (--poses-align se3)"
+    elif first_pose is None:
         words = "the first placed frame's camera, levelled (world +Z = its up), at the origin"
     elif first_pose == FIRST_POSE_REFERENCE:
         words = "the reference trajectory's world (--first-pose reference): the first placed frame at its pose there"
@@ -123,12 +166,16 @@ def world_of(tracker: Tracker, first_pose: str | None) -> dict:
         words = f"the first placed frame at the pose in {first_pose} (--first-pose)"
     first = tracker.keyframes[0].frame_id if tracker.keyframes else None
     T = tracker.T_world_first if tracker.T_world_first.ndim == 2 or first is None else tracker.T_world_first[first]
-    return {"first_pose": first_pose, "first_frame": first, "T_world_first": None if first is None else T.tolist(),
-            "frame": words}
+    out = {"first_pose": first_pose, "first_frame": first, "T_world_first": None if first is None else T.tolist(),
+           "frame": words}
+    if aligned_to is not None:  # the tracker's world moved into the reference's: T_world_cam = alignment · T_slam
+        out.update(aligned_to=aligned_to, alignment=np.asarray(alignment, np.float64).tolist())
+    return out
 
 
 def _write_slam_outputs(out: Path, tracker: Tracker, frames: int, revisions: int, unplaced_frames: list,
-                        track_ms_per_frame, lost_reasons: dict, first_pose: str | None = None) -> dict:
+                        track_ms_per_frame, lost_reasons: dict, first_pose: str | None = None,
+                        aligned_to: str | None = None, alignment: np.ndarray | None = None) -> dict:
     """Write ``out/trajectory.tum`` (a comment line naming the world, then the placed frames' committed poses,
     timestamp = frame index; only the comment when none was placed) and ``out/slam.json`` (the tracker's
     summary, the run's figures and :func:`world_of`); return slam.json's content."""
@@ -137,8 +184,9 @@ def _write_slam_outputs(out: Path, tracker: Tracker, frames: int, revisions: int
 
     committed = tracker.committed()
     ids = sorted(committed)
-    world = world_of(tracker, first_pose)
-    poses = np.stack([committed[i] for i in ids]) if ids else np.zeros((0, 4, 4))
+    world = world_of(tracker, first_pose, aligned_to, alignment)
+    A = np.eye(4) if alignment is None else np.asarray(alignment, np.float64)
+    poses = np.stack([A @ committed[i] for i in ids]) if ids else np.zeros((0, 4, 4))
     write_text(out / TRAJECTORY_TUM, f"# world: {world['frame']}\n"
                + format_tum(poses, timestamps=np.array(ids, np.float64)))
     info = tracker.summary() | {"frames": frames, "placed": len(ids), "revisions": revisions,
