@@ -32,7 +32,8 @@ PANOVOCC = [sys.executable, "-m", "panovocc_cli"]
 def _run(args: list) -> str:
     r = subprocess.run(PANOVOCC + [str(a) for a in args], capture_output=True, text=True)
     if r.returncode != 0:
-        raise SystemExit(f"panovocc {' '.join(map(str, args))}: {r.stderr.strip().splitlines()[-1:]}")
+        last = (r.stderr.strip().splitlines() or ["failed"])[-1]
+        raise SystemExit(f"panovocc {' '.join(map(str, args))}: {last}")
     return r.stdout
 
 

@@ -46,6 +46,13 @@ class TrajEvalConfig:
                                    help="Write the numbers as JSON to this file.")
 
 
+def _parse_offset(text: str) -> tuple[float, float, float]:
+    """``--offset X,Y,Z`` (``datasets.synth.parse_offset``, imported when an offset is given)."""
+    from ..datasets.synth import parse_offset
+
+    return parse_offset(text)
+
+
 @dataclass
 class TrajPerturbConfig:
     """``panovocc traj perturb``: a seeded perturbed copy of a trajectory (geometry/drift.py's models): drift
@@ -68,15 +75,10 @@ class TrajPerturbConfig:
     seed: int = option(DEFAULT_SEED, min=0, max=MAX_SEED,
                        help="Seed of the drift and the jitter; the same seed gives the same file.")
     offset: tuple[float, float, float] | None = option(
-        None, cli_type=str, parse=lambda text: _parse_offset(text), metavar="X,Y,Z",
+        None, cli_type=str, parse=_parse_offset, metavar="X,Y,Z",
         help="X,Y,Z metres added to every camera position after the drift and the jitter: the whole trajectory "
              "moved rigidly (where a map of it sits against the voxel lattice).")
 
-
-def _parse_offset(text: str) -> tuple[float, float, float]:
-    from ..datasets.synth import parse_offset
-
-    return parse_offset(text)
 
 
 def associate(stamps_est, stamps_ref, max_diff: float) -> tuple[np.ndarray, np.ndarray]:

@@ -263,6 +263,11 @@ class MapConfig:
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise PanovoccError(f"not a panovocc map config ({type(e).__name__}: {e})", where) from None
 
+    def reference_path(self) -> Path:
+        """The reference trajectory of ``--poses-align`` and ``--first-pose reference``: ``--poses-reference``,
+        default SEQ/poses.txt."""
+        return Path(self.poses_reference) if self.poses_reference is not None else Path(self.seq) / "poses.txt"
+
     def mapper_config(self) -> "MapperConfig":
         """The mapper's part of a resolved config (the vocabulary is empty for ``--segmenter none``)."""
         return MapperConfig.of(self.geometry, self.occupancy, self.semantic, self.origin)

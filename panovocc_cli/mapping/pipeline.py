@@ -266,8 +266,7 @@ def run_poses(cfg: MapConfig) -> np.ndarray | None:
     if cfg.poses_align != "none":
         from ..evaluation.trajectory import align_trajectory
 
-        ref = frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
-        poses = align_trajectory(poses, ref, cfg.poses_align)[0]
+        poses = align_trajectory(poses, frame_poses(cfg.reference_path(), n), cfg.poses_align)[0]
     return poses
 
 
@@ -291,12 +290,10 @@ def slam_first_poses(cfg: MapConfig, n: int) -> np.ndarray:
     reference's world, which the final fit then corrects by millimetres, so a reference far from the world
     origin keeps the map's keys in range); none: identity (the tracker then levels the first frame at the
     origin, :data:`~..slam.tracker.LEVEL_FIRST`)."""
-    if cfg.first_pose is None and cfg.poses_align == "se3":
-        return frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
+    if cfg.first_pose == FIRST_POSE_REFERENCE or (cfg.first_pose is None and cfg.poses_align == "se3"):
+        return frame_poses(cfg.reference_path(), n)
     if cfg.first_pose is None:
         return np.tile(np.eye(4), (n, 1, 1))
-    if cfg.first_pose == FIRST_POSE_REFERENCE:
-        return frame_poses(cfg.poses_reference if cfg.poses_reference is not None else Path(cfg.seq) / "poses.txt", n)
     return np.tile(read_first_pose(cfg.first_pose), (n, 1, 1))
 
 

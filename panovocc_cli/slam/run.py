@@ -86,7 +86,6 @@ class SlamPoses:
             self.on_loops(step.frame_id, step.loops)
         return T, revisions
 
-
     def _aligned(self, fid: int, T) -> tuple:
         """After the final refinement: the rigid motion that fits the placed frames' final poses to ``align_to``'s
         (:func:`~..evaluation.trajectory.align_trajectory`, SE(3)), kept in :attr:`alignment`; returns the last
@@ -142,13 +141,8 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
         Path(summary["out"]), source.tracker, frames=summary["frames"], revisions=source.revisions,
         unplaced_frames=summary.get("unplaced_frames", []), track_ms_per_frame=summary.get("track_ms_per_frame"),
         lost_reasons={str(f): r for f, s, _, r in source.steps if r}, first_pose=cfg.first_pose,
-        aligned_to=None if source.align_to is None else _reference_name(cfg), alignment=source.alignment)
+        aligned_to=None if source.align_to is None else str(cfg.reference_path()), alignment=source.alignment)
     return summary
-
-
-def _reference_name(cfg: MapConfig) -> str:
-    return str(cfg.poses_reference) if cfg.poses_reference is not None else str(Path(cfg.seq) / "poses.txt")
-
 
 
 def world_of(tracker: Tracker, first_pose: str | None, aligned_to: str | None = None,

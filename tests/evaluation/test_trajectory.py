@@ -139,7 +139,6 @@ def test_traj_perturb_then_eval_command_line(tmp_path, capsys):
     assert (tmp_path / "top.png").stat().st_size > 1000 and (tmp_path / "top.config.json").is_file()
 
 
-
 def test_traj_perturb_offset_moves_every_position_and_nothing_else(tmp_path, capsys):
     """--offset X,Y,Z: every camera position moved by the same vector, the rotations untouched, after any
     jitter; a malformed offset is refused with exit 2 and nothing written."""
@@ -161,6 +160,7 @@ def test_traj_perturb_offset_moves_every_position_and_nothing_else(tmp_path, cap
     for bad in ("1,2", "1,2,x", "1,2,nan"):
         code, _, err = run_cli(capsys, ["traj", "perturb", tmp_path / "gt.txt", tmp_path / "bad.txt", "--offset", bad])
         assert code == 2 and "--offset" in err and not (tmp_path / "bad.txt").exists()
+
 
 def test_traj_perturb_jitter_command_line(tmp_path, capsys):
     """--jitter / --rot-jitter-deg: per-frame noise on top of the drift, seeded; ATE near the jitter's sigma."""
