@@ -11,6 +11,7 @@ modules holding them import only the standard library, numpy, numpy-free paramet
 
 from __future__ import annotations
 
+import json
 import math
 
 import dataclasses
@@ -167,6 +168,20 @@ def parse_origin(text) -> list[float]:
     return vals
 
 
+def parse_slam_params(text) -> str:
+    """``--slam-params`` as typed: a JSON object of front-end parameters (``SlamParams`` fields, whose names
+    and types :func:`panovocc_cli.slam.run.slam_params` checks); returned as compact JSON with sorted keys.
+    One line naming --slam-params otherwise."""
+    try:
+        d = json.loads(str(text))
+    except ValueError:
+        d = None
+    if not isinstance(d, dict) or not d or not all(isinstance(v, (bool, int, float, str)) for v in d.values()):
+        raise PanovoccError("--slam-params must be a JSON object of front-end parameters (SlamParams fields, "
+                            f"docs/slam.md), e.g. '{{\"refine_radius_m\": 1.0}}', got {text!r}")
+    return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+
 @dataclass
 class MapConfig:
     """Everything ``panovocc map`` needs; saved resolved as ``OUT/config.json``.
@@ -205,6 +220,10 @@ class MapConfig:
     heading_prior: bool = option(False, help="With --poses slam: the final refinement holds each keyframe's heading to "
                                              "the walls it sees (perpendicular walls, modulo 90 deg, as the first "
                                              "keyframes see them): for buildings, whose stairs turn a floor a little.")
+    slam_params: str | None = option(None, cli_type=str, parse=parse_slam_params, metavar="JSON", show_default=False,
+                                     help="With --poses slam: front-end parameters other than the defaults, a JSON "
+                                          "object of SlamParams fields (docs/slam.md), e.g. "
+                                          "'{\"refine_radius_m\": 1.0}' for a building's long corridors.")
     # a range of the sequence's frames (ids stay the sequence's indices); None = every frame
     frames: str | None = option(None, cli_type=str, parse=parse_frames, metavar="A:B", show_default=False,
                                 help="Map only frames A..B-1 of the sequence (A: to its end; A:B,C:D several "
@@ -242,6 +261,8 @@ class MapConfig:
             del d["revise_per_frame"]
         if not d["heading_prior"]:  # and before --heading-prior
             del d["heading_prior"]
+        if d["slam_params"] is None:  # and before --slam-params
+            del d["slam_params"]
         d["format_version"] = FORMAT_VERSION
         return d
 
@@ -256,6 +277,7 @@ class MapConfig:
                        checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
                        revise_per_frame=int(d.get("revise_per_frame", 0)),
                        heading_prior=bool(d.get("heading_prior", False)),
+                       slam_params=None if d.get("slam_params") is None else parse_slam_params(d["slam_params"]),
                        frames=None if d.get("frames") is None else parse_frames(d["frames"]),
                        geometry=g, occupancy=o, origin=origin,
                        stride=int(d.get("stride", 0)), semantic_stride=int(d.get("semantic_stride", 0)),

@@ -105,6 +105,32 @@ class SlamPoses:
         return T, sorted(moved.items())
 
 
+def slam_params(text: str, params: SlamParams | None = None) -> SlamParams:
+    """``params`` (default :class:`SlamParams`) with the fields of ``--slam-params``' JSON object ``text``
+    replaced: each name a field of :class:`SlamParams`, each value of its type (an int where a float is
+    expected is taken); one line naming --slam-params otherwise, before any work."""
+    from ..errors import PanovoccError
+
+    d = json.loads(text)
+    base = params or SlamParams()
+    fields = {f.name for f in dataclasses.fields(SlamParams)}
+    unknown = sorted(set(d) - fields)
+    if unknown:
+        raise PanovoccError(f"--slam-params: unknown front-end parameter(s) {', '.join(unknown)} (the fields of "
+                            "panovocc_cli.slam.SlamParams, docs/slam.md)")
+    for name, v in d.items():
+        want = type(getattr(base, name))
+        ok = isinstance(v, want) and not (want is int and isinstance(v, bool)) or (
+            want is float and isinstance(v, int) and not isinstance(v, bool))
+        if not ok:
+            raise PanovoccError(f"--slam-params: {name} must be {want.__name__}, got {v!r}")
+        d[name] = want(v)
+    try:
+        return dataclasses.replace(base, **d).check()
+    except ValueError as e:
+        raise PanovoccError(f"--slam-params: {e}") from None
+
+
 def finish(tracker: Tracker, fid: int, T, revisions: list) -> tuple:
     """After the last frame ``fid`` (placed at ``T``, or None, with ``revisions``): :meth:`Tracker.finish`'s
     refinement; returns the last frame's pose and the revisions of the others, each frame once (its final
@@ -129,6 +155,8 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     from ..mapping.pipeline import run_map
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
+    if cfg.slam_params is not None:  # --slam-params JSON (the flags below take precedence)
+        params = slam_params(cfg.slam_params, params)
     if cfg.revise_per_frame:  # --revise-per-frame K
         params = dataclasses.replace(params or SlamParams(), revise_per_frame=int(cfg.revise_per_frame))
     if cfg.heading_prior:  # --heading-prior

@@ -1,5 +1,6 @@
-"""``panovocc map SEQ OUT --poses slam --revise-per-frame K``: the tracker's revision budget
-(``SlamParams.revise_per_frame``) from the command line, recorded in config.json and slam.json; refused without
+"""``panovocc map SEQ OUT --poses slam`` with the front end's options: ``--revise-per-frame K`` (the tracker's
+revision budget, ``SlamParams.revise_per_frame``), ``--heading-prior`` and ``--slam-params JSON`` (any
+``SlamParams`` field) from the command line, recorded in config.json and slam.json; refused without
 ``--poses slam`` (issue 22)."""
 
 import json
@@ -45,4 +46,34 @@ def test_heading_prior_from_the_command_line(short_seq, tmp_path, capsys):
     code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "m", "--segmenter", "none", "--quiet",
                                     "--heading-prior"])
     assert code == 2 and "--heading-prior" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "m").exists()
+
+
+def test_slam_params_from_the_command_line(short_seq, tmp_path, capsys):
+    """``--slam-params JSON`` sets SlamParams fields (an int where a float is expected is taken), recorded in
+    config.json and slam.json; an unknown field, a value of the wrong type, text that is not a JSON object, a
+    value the parameters refuse and a run without ``--poses slam`` are each refused in one line, exit 2, nothing
+    written."""
+    base = ["--poses", "slam", "--first-pose", "reference", "--segmenter", "none", "--quiet"]
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "p", *base, "--slam-params",
+                                    '{"refine_radius_m": 1, "refine_partners": 2, "refine": true}'])
+    assert code == 0, err
+    assert json.loads((tmp_path / "p" / "config.json").read_text())["slam_params"] == (
+        '{"refine":true,"refine_partners":2,"refine_radius_m":1}')
+    got = json.loads((tmp_path / "p" / "slam.json").read_text())["params"]
+    assert got["refine_radius_m"] == 1.0 and isinstance(got["refine_radius_m"], float) and got["refine_partners"] == 2
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "d", *base])
+    assert code == 0, err
+    assert "slam_params" not in json.loads((tmp_path / "d" / "config.json").read_text())  # as before the option
+    assert json.loads((tmp_path / "d" / "slam.json").read_text())["params"]["refine_radius_m"] == SlamParams().refine_radius_m
+    for text, word in [('{"refine_radius": 1.0}', "refine_radius"), ('{"refine": 1}', "refine must be bool"),
+                       ('{"refine_partners": 2.5}', "refine_partners must be int"), ("[1, 2]", "JSON object"),
+                       ("{refine: 1}", "JSON object"), ('{"backend": "icp"}', "backend must be one of")]:
+        out = tmp_path / "bad"
+        code, _, err = run_cli(capsys, ["map", short_seq, out, *base, "--slam-params", text])
+        assert code == 2 and "--slam-params" in err and word in err and err.count("\n") == 1, (text, err)
+        assert not out.exists()
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "m", "--segmenter", "none", "--quiet",
+                                    "--slam-params", '{"refine_radius_m": 1.0}'])
+    assert code == 2 and "--slam-params" in err and err.count("\n") == 1, err
     assert not (tmp_path / "m").exists()
