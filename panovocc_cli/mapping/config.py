@@ -177,7 +177,7 @@ def parse_slam_params(text) -> str:
     except ValueError:
         d = None
     if not isinstance(d, dict) or not d or not all(isinstance(v, (bool, int, float, str)) for v in d.values()):
-        raise PanovoccError("--slam-params must be a JSON object of front-end parameters (SlamParams fields, "
+        raise PanovoccError("--slam-params must be a non-empty JSON object of front-end parameters (SlamParams fields, "
                             f"docs/slam.md), e.g. '{{\"refine_radius_m\": 1.0}}', got {text!r}")
     return json.dumps(d, sort_keys=True, separators=(",", ":"))
 

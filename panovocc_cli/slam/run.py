@@ -120,11 +120,11 @@ def slam_params(text: str, params: SlamParams | None = None) -> SlamParams:
                             "panovocc_cli.slam.SlamParams, docs/slam.md)")
     for name, v in d.items():
         want = type(getattr(base, name))
-        ok = isinstance(v, want) and not (want is int and isinstance(v, bool)) or (
-            want is float and isinstance(v, int) and not isinstance(v, bool))
-        if not ok:
+        if want is float and type(v) is int:  # JSON's 1 for 1.0 (a bool is not an int here)
+            v = float(v)
+        if type(v) is not want:
             raise PanovoccError(f"--slam-params: {name} must be {want.__name__}, got {v!r}")
-        d[name] = want(v)
+        d[name] = v
     try:
         return dataclasses.replace(base, **d).check()
     except ValueError as e:
