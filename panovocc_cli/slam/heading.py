@@ -1,5 +1,6 @@
 """The Manhattan heading of a keyframe: the direction of the walls it sees, about the vertical (opt-in prior of
-the final refinement, ``SlamParams.heading_prior``).
+the final refinement, ``SlamParams.heading_prior``); and its vertical: the normal of the floors and ceilings it
+sees (``SlamParams.level_prior``).
 
 Indoor scenes are mostly built on two perpendicular wall directions. A keyframe's downsampled points give
 their normals (Open3D, from the 0.25 m neighbourhood); the horizontal ones (within ``HORIZONTAL`` of the
@@ -7,7 +8,13 @@ horizontal plane) have azimuths that cluster every 90°. :func:`wall_heading` ta
 circular mean of 4θ), then trims it three times to the normals within 10°, 4° and 2° of it: furniture at odd
 angles, noisy normals and corners drop out. On the building's frames with their true poses the heading scatters
 by 0.014° (one standard deviation; 0.036° on a furnished house), against the 0.05-0.09° a walk up one storey of
-stairs leaves uncorrected (docs/slam.md, "The building's heading"). Maths only: no files, no printing.
+stairs leaves uncorrected (docs/slam.md, "The building's heading").
+
+:func:`floor_vertical` does the same for the floors and ceilings: the normals within ``VERTICAL_DEG`` of the up
+axis, turned upwards, averaged, then trimmed to those within 4, 2 and 1 degrees of the mean. Floors and ceilings
+are level in nearly every building, so a keyframe's vertical fixes its roll and pitch absolutely; a walk along
+a 94 m corridor otherwise leaves a floor tilted by 0.01-0.02 deg, tens of millimetres at its far end (docs/slam.md,
+"The building's tilt"). Maths only: no files, no printing.
 """
 
 from __future__ import annotations
@@ -16,6 +23,8 @@ import numpy as np
 
 HORIZONTAL = np.sin(np.radians(11.5))  # |n . up| below this: a wall's normal (cos 78.5 deg)
 TRIMS_DEG = (10.0, 4.0, 2.0)
+VERTICAL_DEG = 10.0  # |angle(n, up)| below this: a floor's or ceiling's normal
+VERTICAL_TRIMS_DEG = (4.0, 2.0, 1.0)
 
 
 def horizontal_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +56,40 @@ def wall_heading(normals_world: np.ndarray, up: np.ndarray) -> tuple[float, floa
             return float("nan"), 0.0
         phi = float(wrap_quarter(phi + r[inside].mean()))
     return phi, float(inside.mean())
+
+
+def floor_vertical(normals_world: np.ndarray, up: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """(unit vertical (3,) in the world, share of the near-vertical normals within the last trim of it) of unit
+    normals (n, 3) in the world, from those within ``VERTICAL_DEG`` of ``up`` either way (floors and ceilings,
+    turned to point along ``up``); (None, 0.0) when fewer than 50 are."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    n = np.asarray(normals_world, np.float64)
+    u = n @ up
+    keep = np.abs(u) > np.cos(np.radians(VERTICAL_DEG))
+    if keep.sum() < 50:
+        return None, 0.0
+    n = n[keep] * np.sign(u[keep])[:, None]
+    v = n.mean(axis=0)
+    v /= np.linalg.norm(v)
+    inside = np.ones(len(n), bool)
+    for cut in np.radians(VERTICAL_TRIMS_DEG):
+        inside = n @ v > np.cos(cut)
+        if inside.sum() < 20:
+            return None, 0.0
+        v = n[inside].mean(axis=0)
+        v /= np.linalg.norm(v)
+    return v, float(inside.mean())
+
+
+def tilt_between(v: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """The smallest rotation vector (3,) turning unit ``v`` onto unit ``ref`` (its norm the angle, radians)."""
+    v = np.asarray(v, np.float64)
+    ref = np.asarray(ref, np.float64)
+    axis = np.cross(v, ref)
+    s = float(np.linalg.norm(axis))
+    if s == 0.0:
+        return np.zeros(3)
+    return axis / s * float(np.arctan2(s, float(v @ ref)))
 
 
 def quarter_mean(a) -> float:

@@ -103,12 +103,36 @@ def heading_factor(k: int, P: np.ndarray, up: np.ndarray, correction: float, sig
     return gtsam.PriorFactorPose3(k, gtsam.Pose3(target), noise)
 
 
+def level_factor(k: int, P: np.ndarray, tilt: np.ndarray, up: np.ndarray, sigma: float):
+    """A prior on keyframe ``k``'s roll and pitch alone: its pose ``P`` (4, 4, in the first keyframe's frame)
+    turned by the rotation vector ``tilt`` (radians, same frame; perpendicular to ``up``, :func:`.heading.
+    tilt_between`) is where it should point; the information is 1 / ``sigma``^2 about every axis perpendicular to
+    ``up`` (in the keyframe's body frame), none about ``up`` itself nor along any translation (a floor of 1e-9,
+    as :func:`heading_factor`'s), under a Huber kernel."""
+    import gtsam
+
+    from ..geometry.drift import so3_exp
+
+    R = np.asarray(P, np.float64)[:3, :3]
+    target = np.eye(4)
+    target[:3, :3] = so3_exp(np.asarray(tilt, np.float64)) @ R
+    target[:3, 3] = np.asarray(P, np.float64)[:3, 3]
+    a = R.T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
+    L = np.zeros((6, 6))
+    L[:3, :3] = (np.eye(3) - np.outer(a, a)) / sigma ** 2
+    L += RIDGE * float(np.abs(L).max()) * np.eye(6)
+    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+                                           gtsam.noiseModel.Gaussian.Information(L))
+    return gtsam.PriorFactorPose3(k, gtsam.Pose3(target), noise)
+
+
 def solve_batch(poses: np.ndarray, edges: list, max_corr_m: float, priors: list | None = None) -> np.ndarray:
     """GTSAM Levenberg-Marquardt over the whole graph (the factors of :class:`IncrementalGraph`).
 
     poses : (n, 4, 4) float64, initial poses in the first keyframe's frame (``poses[0]`` the identity)
-    edges : list of edges (module docstring); priors : GTSAM factors added as they are (the heading priors of
-    :func:`heading_factor`); returns the optimised (n, 4, 4), ``[0]`` the identity."""
+    edges : list of edges (module docstring); priors : GTSAM factors added as they are (the heading and level
+    priors of :func:`heading_factor` and :func:`level_factor`); returns the optimised (n, 4, 4), ``[0]`` the
+    identity."""
     import gtsam
 
     graph = gtsam.NonlinearFactorGraph()

@@ -52,8 +52,10 @@ frame's pose, ``T_world_first``):
    Open3D's); ``refine_passes`` passes, and optionally one every
    ``refine_every`` keyframes. Every frame it moved by more than ``final_revise_m`` / ``final_revise_deg``
    is returned as a revision. With ``heading_prior`` (off by default; iSAM2 only) the batch solve also holds
-   each keyframe's heading to the walls it sees (:mod:`.heading`, :meth:`Tracker._heading_priors`): a
-   building's stairs turn each floor by a few hundredths of a degree, which no loop sees.
+   each keyframe's heading to the walls it sees (:mod:`.heading`, :meth:`Tracker._manhattan_priors`): a
+   building's stairs turn each floor by a few hundredths of a degree, which no loop sees. With ``level_prior``
+   (off by default; iSAM2 only) it holds each keyframe's roll and pitch to the floors and ceilings it sees: a long
+   corridor otherwise tilts a floor by a hundredth of a degree or two.
 7. **Bounded store.** Only the ``kf_held`` keyframes used last keep their registration structures; the
    others keep their downsampled points, the structures rebuilt from them (the same bytes) when needed.
    Loop candidates come from a KD-tree over the keyframe positions (:meth:`Tracker._loop_candidates`).
@@ -166,6 +168,14 @@ class SlamParams:
     heading_max_deg: float = 1.0    # a keyframe whose walls read further than this from the reference gets none
     heading_min_share: float = 0.3  # nor one whose horizontal normals lie within 2 deg of its heading less often
     heading_reference: int = 8      # the reference: the circular mean of the first this many keyframes' headings
+    #                                 (and the mean of their verticals, for the level prior)
+    level_prior: bool = False       # level floors: the final refinement pulls each keyframe's vertical (the normal of
+    #                                 the floors and ceilings it sees, :func:`.heading.floor_vertical`) onto the first
+    #                                 keyframes'; roll and pitch only (a 94 m corridor otherwise leaves a floor tilted
+    #                                 by 0.01-0.02 deg: docs/slam.md "The building's tilt"); off: none
+    level_sigma_deg: float = 0.2    # its standard deviation a keyframe (the verticals' scatter: 0.006-0.03 deg)
+    level_max_deg: float = 1.0      # a keyframe whose vertical reads further than this from the reference gets none
+    level_min_share: float = 0.3    # nor one whose near-vertical normals lie within 1 deg of it less often
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
     kf_held: int = 32               # keyframes that keep their registration structures (the last used; >= 2)
 
@@ -183,6 +193,11 @@ class SlamParams:
         if self.heading_prior and not (self.heading_sigma_deg > 0 and self.heading_max_deg > 0
                                        and self.heading_reference >= 1):
             raise ValueError("heading_sigma_deg and heading_max_deg must be > 0 and heading_reference >= 1")
+        if self.level_prior and self.optimiser != "isam2":
+            raise ValueError("level_prior needs the isam2 optimiser (GTSAM's batch solve of the refinement)")
+        if self.level_prior and not (self.level_sigma_deg > 0 and self.level_max_deg > 0
+                                     and self.heading_reference >= 1):
+            raise ValueError("level_sigma_deg and level_max_deg must be > 0 and heading_reference >= 1")
         return self
 
 
@@ -274,8 +289,10 @@ class Tracker:
         self._committed: dict[int, np.ndarray] = {}
         self._loop_ends: dict[int, list[int]] = {}  # keyframe -> the older keyframes its loop edges join it to
         self.loops_skipped = 0  # candidates not verified (loop_linked)
-        self.heading = None  # the last refinement's heading priors (heading_prior), :meth:`_heading_priors`
+        self.heading = None  # the last refinement's heading priors (heading_prior), :meth:`_manhattan_priors`
         self.heading_corrections = None  # and each keyframe's correction, radians (nan: no heading read)
+        self.level = None  # the last refinement's level priors (level_prior): keyframes, corrections' median, largest
+        self.level_corrections = None  # each keyframe's tilt correction, radians (nan: no vertical read)
         self._pending: deque[int] = deque()  # frames an optimisation moved, not yet handed out (revise_per_frame), largest first
         self.lost: list[int] = []
         self.relocalised: list[int] = []
@@ -731,7 +748,8 @@ class Tracker:
             if p.optimiser == "open3d":
                 P = solve_open3d(poses, self._edges, p.loop_max_corr_m)
             else:
-                priors = self._heading_priors(poses, T0_inv) if batch and p.heading_prior else None
+                priors = self._manhattan_priors(poses, T0_inv) if batch and (p.heading_prior or p.level_prior) \
+                    else None
                 P = solve_batch(poses, self._edges, p.loop_max_corr_m, priors)
             self._graph = None
         else:
@@ -741,14 +759,18 @@ class Tracker:
             kf.T_world = T0 @ Pk
         self.optimisations += 1
 
-    def _heading_priors(self, poses: np.ndarray, T0_inv: np.ndarray) -> list:
-        """The heading priors of a batch solve (``heading_prior``; :mod:`.heading`): each keyframe's wall heading
-        in the world under its current pose, against the circular mean (mod 90 deg) of the first
+    def _manhattan_priors(self, poses: np.ndarray, T0_inv: np.ndarray) -> list:
+        """The priors of a batch solve (``heading_prior``, ``level_prior``; :mod:`.heading`), from each keyframe's
+        normals under its current pose.
+
+        Heading: each keyframe's wall heading in the world against the circular mean (mod 90 deg) of the first
         ``heading_reference`` keyframes'; a keyframe within ``heading_max_deg`` of it whose normals agree
-        (``heading_min_share``) gets :func:`.posegraph.heading_factor` turning it onto the reference. Its
-        figures go to :attr:`heading` (keyframes with a prior, the corrections' median and largest, degrees)."""
-        from .heading import cloud_normals, quarter_mean, wall_heading, wrap_quarter
-        from .posegraph import heading_factor
+        (``heading_min_share``) gets :func:`.posegraph.heading_factor` turning it onto the reference. Level: each
+        keyframe's vertical (its floors' and ceilings' normal) against the mean of the first ``heading_reference``
+        keyframes'; within ``level_max_deg`` and ``level_min_share``, :func:`.posegraph.level_factor` tilting it
+        onto the reference. Their figures go to :attr:`heading` and :attr:`level` (keyframes with a prior, the
+        corrections' median and largest, degrees)."""
+        from .heading import cloud_normals, floor_vertical, wall_heading
 
         p = self.params
         _, up_all, _ = self._keyframe_arrays()
@@ -756,11 +778,30 @@ class Tracker:
         if float(np.linalg.norm(g)) <= 1e-6 * len(up_all):
             return []
         up = g / np.linalg.norm(g)
-        phi = np.full(len(self.keyframes), np.nan)
-        share = np.zeros(len(self.keyframes))
+        n_kf = len(self.keyframes)
+        phi, share = np.full(n_kf, np.nan), np.zeros(n_kf)
+        vert, vshare = np.full((n_kf, 3), np.nan), np.zeros(n_kf)
         for k, kf in enumerate(self.keyframes):
-            n = cloud_normals(kf.cloud.points, 2.5 * self.reg.voxel_m, self.reg.threads)
-            phi[k], share[k] = wall_heading(n @ kf.T_world[:3, :3].T, up)
+            n = cloud_normals(kf.cloud.points, 2.5 * self.reg.voxel_m, self.reg.threads) @ kf.T_world[:3, :3].T
+            if p.heading_prior:
+                phi[k], share[k] = wall_heading(n, up)
+            if p.level_prior:
+                v, vshare[k] = floor_vertical(n, up)
+                if v is not None:
+                    vert[k] = v
+        R0 = T0_inv[:3, :3]  # the graph is solved in the first keyframe's frame
+        out = []
+        if p.heading_prior:
+            out += self._heading_factors(phi, share, poses, R0 @ up)
+        if p.level_prior:
+            out += self._level_factors(vert, vshare, poses, R0)
+        return out
+
+    def _heading_factors(self, phi: np.ndarray, share: np.ndarray, poses: np.ndarray, up0: np.ndarray) -> list:
+        from .heading import quarter_mean, wrap_quarter
+        from .posegraph import heading_factor
+
+        p = self.params
         ref = phi[: p.heading_reference]
         ref = ref[np.isfinite(ref)]
         self.heading = {"priors": 0, "median_deg": 0.0, "max_deg": 0.0}
@@ -772,12 +813,36 @@ class Tracker:
         ok = np.isfinite(c) & (share >= p.heading_min_share) & (np.abs(np.nan_to_num(c, nan=np.inf))
                                                                  <= np.radians(p.heading_max_deg))
         ok[0] = False  # the first keyframe is held by its own prior
-        up0 = T0_inv[:3, :3] @ up  # the graph is solved in the first keyframe's frame
         sigma = np.radians(p.heading_sigma_deg)
         out = [heading_factor(k, poses[k], up0, float(c[k]), sigma) for k in np.nonzero(ok)[0]]
         if len(out):
             self.heading = {"priors": len(out), "median_deg": float(np.degrees(np.median(np.abs(c[ok])))),
                             "max_deg": float(np.degrees(np.abs(c[ok]).max()))}
+        return out
+
+    def _level_factors(self, vert: np.ndarray, share: np.ndarray, poses: np.ndarray, R0: np.ndarray) -> list:
+        from .heading import tilt_between
+        from .posegraph import level_factor
+
+        p = self.params
+        ref = vert[: p.heading_reference]
+        ref = ref[np.all(np.isfinite(ref), axis=1)]
+        self.level = {"priors": 0, "median_deg": 0.0, "max_deg": 0.0}
+        if len(ref) == 0:
+            return []
+        ref = ref.sum(axis=0) / np.linalg.norm(ref.sum(axis=0))
+        tilt = np.full((len(vert), 3), np.nan)
+        seen = np.all(np.isfinite(vert), axis=1)
+        tilt[seen] = [tilt_between(v, ref) for v in vert[seen]]
+        angle = np.linalg.norm(tilt, axis=1)  # nan where no vertical
+        self.level_corrections = angle
+        ok = seen & (share >= p.level_min_share) & (np.nan_to_num(angle, nan=np.inf) <= np.radians(p.level_max_deg))
+        ok[0] = False  # the first keyframe is held by its own prior
+        sigma = np.radians(p.level_sigma_deg)
+        out = [level_factor(k, poses[k], R0 @ tilt[k], R0 @ ref, sigma) for k in np.nonzero(ok)[0]]
+        if len(out):
+            self.level = {"priors": len(out), "median_deg": float(np.degrees(np.median(angle[ok]))),
+                          "max_deg": float(np.degrees(angle[ok].max()))}
         return out
 
     def _revisions(self, exclude: int, trans_m: float | None = None, rot_deg: float | None = None,
@@ -830,7 +895,8 @@ class Tracker:
         frames, the keyframe store (:meth:`memory`)."""
         return {"keyframes": len(self.keyframes), "keyframe_ids": [k.frame_id for k in self.keyframes],
                 "loop_closures": [list(x) for x in self.loops], "optimisations": self.optimisations,
-                "loops_skipped": self.loops_skipped, "heading": self.heading, "refinements": self.refinements,
+                "loops_skipped": self.loops_skipped, "heading": self.heading, "level": self.level,
+                "refinements": self.refinements,
                 "keyframe_store": self.memory(),
                 "lost_frames": list(self.lost), "relocalised_frames": list(self.relocalised),
                 "params": dataclasses.asdict(self.params), "stride": self.stride}

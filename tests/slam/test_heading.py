@@ -1,14 +1,15 @@
-"""slam/heading.py and the refinement's heading prior (``SlamParams.heading_prior``): a keyframe's wall heading
-read from its normals, modulo 90 degrees; a prior that turns one keyframe about the up axis and nothing else;
-a tracker whose later keyframes were turned by a small heading error finds that error."""
+"""slam/heading.py and the refinement's heading and level priors (``SlamParams.heading_prior``,
+``level_prior``): a keyframe's wall heading read from its normals, modulo 90 degrees, and its vertical from its
+floors and ceilings; a prior that turns one keyframe about the up axis and nothing else, another that tilts it
+and does not turn it; a tracker whose later keyframes were turned or tilted by a small error finds that error."""
 
 import numpy as np
 import pytest
 
 from panovocc_cli.io.sequence import Sequence
 from panovocc_cli.slam import SlamParams, Tracker
-from panovocc_cli.slam.heading import rotation_about, wall_heading, wrap_quarter
-from panovocc_cli.slam.posegraph import heading_factor, solve_batch
+from panovocc_cli.slam.heading import floor_vertical, rotation_about, tilt_between, wall_heading, wrap_quarter
+from panovocc_cli.slam.posegraph import heading_factor, level_factor, solve_batch
 
 
 def _normals(heading_deg, n_walls=3000, n_clutter=1500, noise_deg=1.0, seed=0):
@@ -68,7 +69,7 @@ def test_tracker_reads_a_heading_error_of_its_later_keyframes(loop_seq):
 
     def corrections():
         T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
-        priors = tr._heading_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        priors = tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
         assert tr.heading["priors"] == len(priors) >= n - 3
         return np.degrees(tr.heading_corrections)
 
@@ -87,3 +88,81 @@ def test_tracker_reads_a_heading_error_of_its_later_keyframes(loop_seq):
     assert np.allclose(after[4:] - before[4:], -0.08, atol=1e-3)
     with pytest.raises(ValueError, match="isam2"):
         SlamParams(heading_prior=True, optimiser="open3d").check()
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 0.02, 0.5, 3.0])
+def test_floor_vertical_from_floors_and_ceilings(tilt_deg):
+    """Floors (normals up) and ceilings (down: PCA normals have no sign) with 0.3 degrees of noise, walls and
+    clutter, all tilted by ``tilt_deg`` about an axis in the horizontal plane: the vertical reads the tilt
+    to a hundredth of a degree, whichever way the normals point."""
+    rng = np.random.default_rng(1)
+    flat = np.array([0.0, 0.0, 1.0]) + np.radians(0.3) * rng.standard_normal((4000, 3)) * [1, 1, 0]
+    flat *= rng.choice([-1.0, 1.0], 4000)[:, None]
+    c = rng.standard_normal((1500, 3))  # clutter at every angle, some of it within 10 degrees of vertical
+    n = np.concatenate([flat, _normals(20.0, n_clutter=0)[:3000], c])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    axis = np.array([0.6, -0.8, 0.0])
+    R = rotation_about(axis, np.radians(tilt_deg)) if tilt_deg else np.eye(3)
+    v, share = floor_vertical(n @ R.T, np.array([0.0, 0.0, 1.0]))
+    assert share > 0.3
+    assert np.degrees(np.linalg.norm(np.cross(v, R @ [0.0, 0.0, 1.0]))) < 0.01
+    t = tilt_between(v, np.array([0.0, 0.0, 1.0]))
+    assert abs(np.degrees(np.linalg.norm(t)) - tilt_deg) < 0.01
+    if tilt_deg >= 0.5:
+        assert abs(abs(t @ axis) / np.linalg.norm(t) - 1.0) < 1e-3
+
+
+def test_floor_vertical_needs_floors():
+    walls = _normals(10.0, n_clutter=0)[:3000]
+    v, share = floor_vertical(walls, np.array([0.0, 0.0, 1.0]))
+    assert v is None and share == 0.0
+
+
+def test_level_factor_tilts_without_turning():
+    """A node held by nothing but its level prior is tilted by the correction; its heading about up and its
+    position stay."""
+    up = np.array([0.0, 0.0, 1.0])
+    P1 = np.eye(4)
+    P1[:3, :3] = rotation_about(up, np.radians(40.0)) @ rotation_about([0.2, 1.0, 0.3], np.radians(30.0))
+    P1[:3, 3] = [3.0, -1.0, 0.5]
+    tilt = np.radians(0.05) * np.array([0.6, 0.8, 0.0])
+    out = solve_batch(np.stack([np.eye(4), P1]), [], 0.1, [level_factor(1, P1, tilt, up, np.radians(0.05))])
+    from panovocc_cli.geometry.drift import so3_exp
+
+    assert np.allclose(out[1][:3, :3], so3_exp(tilt) @ P1[:3, :3], atol=1e-9)
+    assert np.allclose(out[1][:3, 3], P1[:3, 3], atol=1e-9)
+
+
+def test_tracker_reads_a_tilt_of_its_later_keyframes(loop_seq):
+    """Keyframes tracked over a real room, then every keyframe after the fourth tilted by 0.05 degrees about a
+    horizontal axis through the first (a floor tilted along a corridor): the level priors ask each of those
+    back by 0.05 degrees, the first four as before."""
+    seq = Sequence(loop_seq)
+    p = SlamParams(level_prior=True, heading_reference=4)
+    tr = Tracker(seq.meta.width, seq.meta.height, p, T_world_first=seq.poses[0])
+    for i in range(24):
+        tr.track(i, seq.depth(i))
+    n = len(tr.keyframes)
+    assert n >= 8
+
+    def tilts():
+        T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
+        priors = tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        assert tr.level["priors"] == len(priors) >= n - 3 and tr.heading is None
+        return np.degrees(tr.level_corrections)
+
+    before = tilts()
+    assert before.max() < 0.1  # the room's floor and ceiling read within 0.1 degrees under the tracked poses
+    o = tr.keyframes[0].T_world[:3, 3]
+    R = rotation_about([1.0, 2.0, 0.0], np.radians(0.05))
+    for kf in tr.keyframes[4:]:
+        T = kf.T_world.copy()
+        T[:3, :3] = R @ T[:3, :3]
+        T[:3, 3] = R @ (T[:3, 3] - o) + o
+        kf.T_world = T
+    tr.optimisations += 1
+    after = tilts()
+    assert np.allclose(after[:4], before[:4], atol=1e-3)
+    assert np.all(np.abs(after[4:] - 0.05) < before[4:] + 1e-3)  # a tilt of 0.05 deg, plus or minus what was
+    with pytest.raises(ValueError, match="isam2"):
+        SlamParams(level_prior=True, optimiser="open3d").check()
