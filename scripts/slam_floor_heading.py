@@ -3,7 +3,8 @@ estimated poses EST (NICE-SLAM form, in the reference's world: ``--first-pose re
 per floor (the reference camera height, rounded to ``--floor-height``): the median world rotation error about
 +z (yaw), +x and +y (tilt; degrees), and the position error fitted as a + b x + c y per axis (its slopes in mm a
 metre and what is left, RMS mm): a floor turned as a whole about the stairs reads as a yaw error equal to the
-slopes of x and y, a floor tilted as a rotation about x or y equal to the slopes of z. With ``--scatter STEP``:
+slopes of x and y, a floor tilted as a rotation about x or y equal to the slopes of z; and the median z error of
+each tenth of the floor's frames, in walking order. With ``--scatter STEP``:
 also the wall heading (:func:`panovocc_cli.slam.heading.wall_heading`) and the vertical
 (:func:`~panovocc_cli.slam.heading.floor_vertical`) of every STEP-th frame of SEQ under its true pose, their
 spread (degrees) -- what the heading and level priors can read.
@@ -45,7 +46,9 @@ def main() -> None:
         m = floor == f
         A = np.column_stack([np.ones(m.sum()), x[m], y[m]])
         row = {"floor": f, "frames": int(m.sum()), "yaw_deg_median": round(float(np.median(yaw[m])), 4),
-               "tilt_deg_median_x_y": [round(float(np.median(tilt[m, k])), 4) for k in (0, 1)]}
+               "tilt_deg_median_x_y": [round(float(np.median(tilt[m, k])), 4) for k in (0, 1)],
+               "ez_mm_median_by_tenth": [round(1e3 * float(np.median(t)), 1)
+                                         for t in np.array_split(e[m, 2], 10) if len(t)]}
         for k, name in ((0, "x"), (1, "y"), (2, "z")):
             c = np.linalg.lstsq(A, e[m, k], rcond=None)[0]
             r = e[m, k] - A @ c

@@ -173,9 +173,9 @@ class SlamParams:
     #                                 the floors and ceilings it sees, :func:`.heading.floor_vertical`) onto the first
     #                                 keyframes'; roll and pitch only (a 94 m corridor otherwise leaves a floor tilted
     #                                 by 0.01-0.02 deg: docs/slam.md "The building's tilt"); off: none
-    level_sigma_deg: float = 0.2    # its standard deviation a keyframe (the verticals' scatter: 0.006-0.03 deg)
+    level_sigma_deg: float = 0.2    # its standard deviation a keyframe (the verticals' scatter: 0.002-0.018 deg)
     level_max_deg: float = 1.0      # a keyframe whose vertical reads further than this from the reference gets none
-    level_min_share: float = 0.3    # nor one whose near-vertical normals lie within 1 deg of it less often
+    level_min_share: float = 0.3    # nor one whose near-vertical normals lie within 0.5 deg of it less often
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
     kf_held: int = 32               # keyframes that keep their registration structures (the last used; >= 2)
 

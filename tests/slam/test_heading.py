@@ -92,11 +92,11 @@ def test_tracker_reads_a_heading_error_of_its_later_keyframes(loop_seq):
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 0.02, 0.5, 3.0])
 def test_floor_vertical_from_floors_and_ceilings(tilt_deg):
-    """Floors (normals up) and ceilings (down: PCA normals have no sign) with 0.3 degrees of noise, walls and
+    """Floors (normals up) and ceilings (down: PCA normals have no sign) with 0.2 degrees of noise, walls and
     clutter, all tilted by ``tilt_deg`` about an axis in the horizontal plane: the vertical reads the tilt
     to a hundredth of a degree, whichever way the normals point."""
     rng = np.random.default_rng(1)
-    flat = np.array([0.0, 0.0, 1.0]) + np.radians(0.3) * rng.standard_normal((4000, 3)) * [1, 1, 0]
+    flat = np.array([0.0, 0.0, 1.0]) + np.radians(0.2) * rng.standard_normal((4000, 3)) * [1, 1, 0]
     flat *= rng.choice([-1.0, 1.0], 4000)[:, None]
     c = rng.standard_normal((1500, 3))  # clutter at every angle, some of it within 10 degrees of vertical
     n = np.concatenate([flat, _normals(20.0, n_clutter=0)[:3000], c])
