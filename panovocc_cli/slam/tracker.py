@@ -85,6 +85,7 @@ from .registration import BACKENDS, Cloud, Registration, erp_points
 
 TRACKED, KEYFRAME, RELOCALISED, LOST = "tracked", "keyframe", "relocalised", "lost"
 
+LEVEL_REFERENCES = ("keyframes", "world")  # SlamParams.level_reference
 LEVEL_FIRST = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 """Default pose of the first placed frame: the world is its camera frame turned so that world +Z is the
 camera's up (−y) and world +Y its forward (+z), i.e. a level first panorama gives a +Z-up world (the
@@ -176,6 +177,9 @@ class SlamParams:
     level_sigma_deg: float = 0.2    # its standard deviation a keyframe (the verticals' scatter: 0.002-0.018 deg)
     level_max_deg: float = 1.0      # a keyframe whose vertical reads further than this from the reference gets none
     level_min_share: float = 0.3    # nor one whose near-vertical normals lie within 0.5 deg of it less often
+    level_reference: str = "keyframes"  # the vertical the keyframes are held to: the first heading_reference
+    #                                 keyframes' mean ("keyframes"), or the world's +Z ("world": a world given with
+    #                                 --first-pose whose z is up, a survey's or the reference trajectory's)
     threads: int = 1                # registration threads (1: the same frames give the same bytes)
     kf_held: int = 32               # keyframes that keep their registration structures (the last used; >= 2)
 
@@ -198,6 +202,8 @@ class SlamParams:
         if self.level_prior and not (self.level_sigma_deg > 0 and self.level_max_deg > 0
                                      and self.heading_reference >= 1):
             raise ValueError("level_sigma_deg and level_max_deg must be > 0 and heading_reference >= 1")
+        if self.level_reference not in LEVEL_REFERENCES:
+            raise ValueError(f"level_reference must be one of {LEVEL_REFERENCES}, got {self.level_reference!r}")
         return self
 
 
@@ -767,8 +773,8 @@ class Tracker:
         ``heading_reference`` keyframes'; a keyframe within ``heading_max_deg`` of it whose normals agree
         (``heading_min_share``) gets :func:`.posegraph.heading_factor` turning it onto the reference. Level: each
         keyframe's vertical (its floors' and ceilings' normal) against the mean of the first ``heading_reference``
-        keyframes'; within ``level_max_deg`` and ``level_min_share``, :func:`.posegraph.level_factor` tilting it
-        onto the reference. Their figures go to :attr:`heading` and :attr:`level` (keyframes with a prior, the
+        keyframes' (``level_reference`` "world": the world's +Z); within ``level_max_deg`` and ``level_min_share``,
+        :func:`.posegraph.level_factor` tilting it onto the reference. Their figures go to :attr:`heading` and :attr:`level` (keyframes with a prior, the
         corrections' median and largest, degrees)."""
         from .heading import cloud_normals, floor_vertical, wall_heading
 
@@ -825,12 +831,15 @@ class Tracker:
         from .posegraph import level_factor
 
         p = self.params
-        ref = vert[: p.heading_reference]
-        ref = ref[np.all(np.isfinite(ref), axis=1)]
         self.level = {"priors": 0, "median_deg": 0.0, "max_deg": 0.0}
-        if len(ref) == 0:
-            return []
-        ref = ref.sum(axis=0) / np.linalg.norm(ref.sum(axis=0))
+        if p.level_reference == "world":
+            ref = np.array([0.0, 0.0, 1.0])
+        else:
+            ref = vert[: p.heading_reference]
+            ref = ref[np.all(np.isfinite(ref), axis=1)]
+            if len(ref) == 0:
+                return []
+            ref = ref.sum(axis=0) / np.linalg.norm(ref.sum(axis=0))
         tilt = np.full((len(vert), 3), np.nan)
         seen = np.all(np.isfinite(vert), axis=1)
         tilt[seen] = [tilt_between(v, ref) for v in vert[seen]]

@@ -166,3 +166,39 @@ def test_tracker_reads_a_tilt_of_its_later_keyframes(loop_seq):
     assert np.all(np.abs(after[4:] - 0.05) < before[4:] + 1e-3)  # a tilt of 0.05 deg, plus or minus what was
     with pytest.raises(ValueError, match="isam2"):
         SlamParams(level_prior=True, optimiser="open3d").check()
+
+
+def test_level_reference_world_reads_a_tilt_of_every_keyframe(loop_seq):
+    """Every keyframe tilted by 0.05 degrees about a horizontal axis through the first: held to the first keyframes'
+    vertical, the corrections stay as they were (the reference tilts with them); held to the world's +Z
+    (``level_reference`` "world", the world of ``--first-pose``), each grows by 0.05 degrees."""
+    seq = Sequence(loop_seq)
+    trackers = {}
+    for ref in ("keyframes", "world"):
+        tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(level_prior=True, heading_reference=4,
+                                                                 level_reference=ref), T_world_first=seq.poses[0])
+        for i in range(24):
+            tr.track(i, seq.depth(i))
+        trackers[ref] = tr
+
+    def tilts(tr):
+        T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
+        tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        return np.degrees(tr.level_corrections)
+
+    before = {ref: tilts(tr) for ref, tr in trackers.items()}
+    assert before["world"].max() < 0.1  # the room's true world is level
+    for tr in trackers.values():
+        o = tr.keyframes[0].T_world[:3, 3]
+        R = rotation_about([1.0, 2.0, 0.0], np.radians(0.05))
+        for kf in tr.keyframes:
+            T = kf.T_world.copy()
+            T[:3, :3] = R @ T[:3, :3]
+            T[:3, 3] = R @ (T[:3, 3] - o) + o
+            kf.T_world = T
+        tr.optimisations += 1
+    after = {ref: tilts(tr) for ref, tr in trackers.items()}
+    assert np.allclose(after["keyframes"], before["keyframes"], atol=1e-3)
+    assert np.all(np.abs(after["world"] - 0.05) < before["world"] + 1e-3)
+    with pytest.raises(ValueError, match="level_reference"):
+        SlamParams(level_prior=True, level_reference="gravity").check()
