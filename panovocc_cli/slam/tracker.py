@@ -774,8 +774,8 @@ class Tracker:
         (``heading_min_share``) gets :func:`.posegraph.heading_factor` turning it onto the reference. Level: each
         keyframe's vertical (its floors' and ceilings' normal) against the mean of the first ``heading_reference``
         keyframes' (``level_reference`` "world": the world's +Z); within ``level_max_deg`` and ``level_min_share``,
-        :func:`.posegraph.level_factor` tilting it onto the reference. Their figures go to :attr:`heading` and :attr:`level` (keyframes with a prior, the
-        corrections' median and largest, degrees)."""
+        :func:`.posegraph.level_factor` tilting it onto the reference. Their figures go to :attr:`heading` and
+        :attr:`level` (keyframes with a prior, the corrections' median and largest, degrees)."""
         from .heading import cloud_normals, floor_vertical, wall_heading
 
         p = self.params
@@ -842,7 +842,7 @@ class Tracker:
             ref = ref.sum(axis=0) / np.linalg.norm(ref.sum(axis=0))
         tilt = np.full((len(vert), 3), np.nan)
         seen = np.all(np.isfinite(vert), axis=1)
-        tilt[seen] = [tilt_between(v, ref) for v in vert[seen]]
+        tilt[seen] = np.array([tilt_between(v, ref) for v in vert[seen]]).reshape(-1, 3)
         angle = np.linalg.norm(tilt, axis=1)  # nan where no vertical
         self.level_corrections = angle
         ok = seen & (share >= p.level_min_share) & (np.nan_to_num(angle, nan=np.inf) <= np.radians(p.level_max_deg))

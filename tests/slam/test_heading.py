@@ -202,3 +202,14 @@ def test_level_reference_world_reads_a_tilt_of_every_keyframe(loop_seq):
     assert np.all(np.abs(after["world"] - 0.05) < before["world"] + 1e-3)
     with pytest.raises(ValueError, match="level_reference"):
         SlamParams(level_prior=True, level_reference="gravity").check()
+
+
+@pytest.mark.parametrize("reference", ["keyframes", "world"])
+def test_level_priors_when_no_keyframe_sees_a_floor(reference):
+    """Keyframes none of which reads a vertical (outdoors, or a frame with little depth): no level prior, no error,
+    whichever the reference."""
+    tr = Tracker(64, 32, SlamParams(level_prior=True, level_reference=reference))
+    vert = np.full((5, 3), np.nan)
+    out = tr._level_factors(vert, np.zeros(5), np.stack([np.eye(4)] * 5), np.eye(3))
+    assert out == [] and tr.level["priors"] == 0
+    assert reference == "keyframes" or np.all(np.isnan(tr.level_corrections))
