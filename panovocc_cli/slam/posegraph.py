@@ -84,42 +84,42 @@ def heading_factor(k: int, P: np.ndarray, up: np.ndarray, correction: float, sig
     """A prior on keyframe ``k``'s heading alone: its pose ``P`` (4, 4, in the first keyframe's frame) turned by
     ``correction`` radians about ``up`` (unit, same frame) is where it should point; the information is
     1 / ``sigma``^2 about that axis (in the keyframe's body frame, GTSAM's tangent), none in any other direction
-    (a floor of 1e-9 of it, as :func:`_factor`'s), under a Huber kernel (a keyframe whose walls were misread
-    pulls no harder than a linear cost)."""
-    import gtsam
-
+    (:func:`_rotation_prior`)."""
     from .heading import rotation_about
 
-    R = np.asarray(P, np.float64)[:3, :3]
-    target = np.eye(4)
-    target[:3, :3] = rotation_about(up, correction) @ R
-    target[:3, 3] = np.asarray(P, np.float64)[:3, 3]
-    a = R.T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
-    L = np.zeros((6, 6))
-    L[:3, :3] = np.outer(a, a) / sigma ** 2
-    L += RIDGE * float(np.abs(L).max()) * np.eye(6)
-    noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
-                                           gtsam.noiseModel.Gaussian.Information(L))
-    return gtsam.PriorFactorPose3(k, gtsam.Pose3(target), noise)
+    a = _body_up(P, up)
+    return _rotation_prior(k, P, rotation_about(up, correction), np.outer(a, a) / sigma ** 2)
 
 
 def level_factor(k: int, P: np.ndarray, tilt: np.ndarray, up: np.ndarray, sigma: float):
     """A prior on keyframe ``k``'s roll and pitch alone: its pose ``P`` (4, 4, in the first keyframe's frame)
     turned by the rotation vector ``tilt`` (radians, same frame; perpendicular to ``up``, :func:`.heading.
     tilt_between`) is where it should point; the information is 1 / ``sigma``^2 about every axis perpendicular to
-    ``up`` (in the keyframe's body frame), none about ``up`` itself nor along any translation (a floor of 1e-9,
-    as :func:`heading_factor`'s), under a Huber kernel."""
-    import gtsam
-
+    ``up`` (in the keyframe's body frame), none about ``up`` itself (:func:`_rotation_prior`)."""
     from ..geometry.drift import so3_exp
 
-    R = np.asarray(P, np.float64)[:3, :3]
+    a = _body_up(P, up)
+    return _rotation_prior(k, P, so3_exp(np.asarray(tilt, np.float64)), (np.eye(3) - np.outer(a, a)) / sigma ** 2)
+
+
+def _body_up(P: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``up`` (any length, the first keyframe's frame) as a unit vector in the body frame of the pose ``P``."""
+    return np.asarray(P, np.float64)[:3, :3].T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
+
+
+def _rotation_prior(k: int, P: np.ndarray, turn: np.ndarray, info_rot: np.ndarray):
+    """GTSAM prior on keyframe ``k``: its pose ``P`` with the rotation ``turn`` (3, 3) applied on the world side
+    (the position kept) is where it should be; the information is ``info_rot`` (3, 3, the body-frame rotation
+    tangent), none along a translation (a floor of 1e-9 of the largest entry, as :func:`_factor`'s), under a
+    Huber kernel (a keyframe whose walls or floors were misread pulls no harder than a linear cost)."""
+    import gtsam
+
+    P = np.asarray(P, np.float64)
     target = np.eye(4)
-    target[:3, :3] = so3_exp(np.asarray(tilt, np.float64)) @ R
-    target[:3, 3] = np.asarray(P, np.float64)[:3, 3]
-    a = R.T @ (np.asarray(up, np.float64) / np.linalg.norm(up))
+    target[:3, :3] = turn @ P[:3, :3]
+    target[:3, 3] = P[:3, 3]
     L = np.zeros((6, 6))
-    L[:3, :3] = (np.eye(3) - np.outer(a, a)) / sigma ** 2
+    L[:3, :3] = info_rot
     L += RIDGE * float(np.abs(L).max()) * np.eye(6)
     noise = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
                                            gtsam.noiseModel.Gaussian.Information(L))

@@ -25,6 +25,33 @@ def _normals(heading_deg, n_walls=3000, n_clutter=1500, noise_deg=1.0, seed=0):
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+def _tracked(loop_seq, **params) -> Tracker:
+    """A tracker over the first 24 frames of a real room, started at its true first pose."""
+    seq = Sequence(loop_seq)
+    tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**params), T_world_first=seq.poses[0])
+    for i in range(24):
+        tr.track(i, seq.depth(i))
+    return tr
+
+
+def _priors(tr: Tracker) -> list:
+    """The refinement's priors for the tracker's keyframes as they are now."""
+    T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
+    return tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+
+
+def _turn_keyframes(tr: Tracker, R: np.ndarray, first: int) -> None:
+    """Keyframes ``first`` onwards turned by ``R`` (3, 3) about the first keyframe's position (what a storey of
+    stairs or a corridor leaves); the tracker's keyframe arrays are then read again."""
+    o = tr.keyframes[0].T_world[:3, 3]
+    for kf in tr.keyframes[first:]:
+        T = kf.T_world.copy()
+        T[:3, :3] = R @ T[:3, :3]
+        T[:3, 3] = R @ (T[:3, 3] - o) + o
+        kf.T_world = T
+    tr.optimisations += 1
+
+
 @pytest.mark.parametrize("heading", [0.0, 0.3, 30.0, -44.0, 89.7])
 def test_wall_heading_modulo_90_degrees(heading):
     phi, share = wall_heading(_normals(heading), np.array([0.0, 0.0, 1.0]))
@@ -59,30 +86,18 @@ def test_tracker_reads_a_heading_error_of_its_later_keyframes(loop_seq):
     """Keyframes tracked over a real room, then every keyframe after the fourth turned by 0.08 degrees about
     the vertical through the first (what a storey of stairs leaves): the priors ask each of those back by
     0.08 degrees more than before, the first four as before."""
-    seq = Sequence(loop_seq)
-    p = SlamParams(heading_prior=True, heading_reference=4)
-    tr = Tracker(seq.meta.width, seq.meta.height, p, T_world_first=seq.poses[0])
-    for i in range(24):
-        tr.track(i, seq.depth(i))
+    tr = _tracked(loop_seq, heading_prior=True, heading_reference=4)
     n = len(tr.keyframes)
     assert n >= 8
 
     def corrections():
-        T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
-        priors = tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        priors = _priors(tr)
         assert tr.heading["priors"] == len(priors) >= n - 3
         return np.degrees(tr.heading_corrections)
 
     before = corrections()
     assert np.abs(before).max() < 0.2  # the room's walls read within 0.2 degrees under the tracked poses
-    up, o = np.array([0.0, 0.0, 1.0]), tr.keyframes[0].T_world[:3, 3]
-    R = rotation_about(up, np.radians(0.08))
-    for kf in tr.keyframes[4:]:
-        T = kf.T_world.copy()
-        T[:3, :3] = R @ T[:3, :3]
-        T[:3, 3] = R @ (T[:3, 3] - o) + o
-        kf.T_world = T
-    tr.optimisations += 1  # the keyframe arrays are read again
+    _turn_keyframes(tr, rotation_about([0.0, 0.0, 1.0], np.radians(0.08)), 4)
     after = corrections()
     assert np.allclose(after[:4], before[:4], atol=1e-3)
     assert np.allclose(after[4:] - before[4:], -0.08, atol=1e-3)
@@ -137,30 +152,18 @@ def test_tracker_reads_a_tilt_of_its_later_keyframes(loop_seq):
     """Keyframes tracked over a real room, then every keyframe after the fourth tilted by 0.05 degrees about a
     horizontal axis through the first (a floor tilted along a corridor): the level priors ask each of those
     back by 0.05 degrees, the first four as before."""
-    seq = Sequence(loop_seq)
-    p = SlamParams(level_prior=True, heading_reference=4)
-    tr = Tracker(seq.meta.width, seq.meta.height, p, T_world_first=seq.poses[0])
-    for i in range(24):
-        tr.track(i, seq.depth(i))
+    tr = _tracked(loop_seq, level_prior=True, heading_reference=4)
     n = len(tr.keyframes)
     assert n >= 8
 
     def tilts():
-        T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
-        priors = tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        priors = _priors(tr)
         assert tr.level["priors"] == len(priors) >= n - 3 and tr.heading is None
         return np.degrees(tr.level_corrections)
 
     before = tilts()
     assert before.max() < 0.1  # the room's floor and ceiling read within 0.1 degrees under the tracked poses
-    o = tr.keyframes[0].T_world[:3, 3]
-    R = rotation_about([1.0, 2.0, 0.0], np.radians(0.05))
-    for kf in tr.keyframes[4:]:
-        T = kf.T_world.copy()
-        T[:3, :3] = R @ T[:3, :3]
-        T[:3, 3] = R @ (T[:3, 3] - o) + o
-        kf.T_world = T
-    tr.optimisations += 1
+    _turn_keyframes(tr, rotation_about([1.0, 2.0, 0.0], np.radians(0.05)), 4)
     after = tilts()
     assert np.allclose(after[:4], before[:4], atol=1e-3)
     assert np.all(np.abs(after[4:] - 0.05) < before[4:] + 1e-3)  # a tilt of 0.05 deg, plus or minus what was
@@ -172,37 +175,22 @@ def test_level_reference_world_reads_a_tilt_of_every_keyframe(loop_seq):
     """Every keyframe tilted by 0.05 degrees about a horizontal axis through the first: held to the first keyframes'
     vertical, the corrections stay as they were (the reference tilts with them); held to the world's +Z
     (``level_reference`` "world", the world of ``--first-pose``), each grows by 0.05 degrees."""
-    seq = Sequence(loop_seq)
-    trackers = {}
-    for ref in ("keyframes", "world"):
-        tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(level_prior=True, heading_reference=4,
-                                                                 level_reference=ref), T_world_first=seq.poses[0])
-        for i in range(24):
-            tr.track(i, seq.depth(i))
-        trackers[ref] = tr
+    trackers = {ref: _tracked(loop_seq, level_prior=True, heading_reference=4, level_reference=ref)
+                for ref in ("keyframes", "world")}
 
     def tilts(tr):
-        T0_inv = np.linalg.inv(tr.keyframes[0].T_world)
-        tr._manhattan_priors(np.stack([T0_inv @ kf.T_world for kf in tr.keyframes]), T0_inv)
+        _priors(tr)
         return np.degrees(tr.level_corrections)
 
     before = {ref: tilts(tr) for ref, tr in trackers.items()}
     assert before["world"].max() < 0.1  # the room's true world is level
     for tr in trackers.values():
-        o = tr.keyframes[0].T_world[:3, 3]
-        R = rotation_about([1.0, 2.0, 0.0], np.radians(0.05))
-        for kf in tr.keyframes:
-            T = kf.T_world.copy()
-            T[:3, :3] = R @ T[:3, :3]
-            T[:3, 3] = R @ (T[:3, 3] - o) + o
-            kf.T_world = T
-        tr.optimisations += 1
+        _turn_keyframes(tr, rotation_about([1.0, 2.0, 0.0], np.radians(0.05)), 0)
     after = {ref: tilts(tr) for ref, tr in trackers.items()}
     assert np.allclose(after["keyframes"], before["keyframes"], atol=1e-3)
     assert np.all(np.abs(after["world"] - 0.05) < before["world"] + 1e-3)
     with pytest.raises(ValueError, match="level_reference"):
         SlamParams(level_prior=True, level_reference="gravity").check()
-
 
 @pytest.mark.parametrize("reference", ["keyframes", "world"])
 def test_level_priors_when_no_keyframe_sees_a_floor(reference):
