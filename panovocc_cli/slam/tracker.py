@@ -687,27 +687,37 @@ class Tracker:
             older = sorted((j for j in near if j < i), key=lambda j: (float(np.linalg.norm(pos[i] - pos[j])), j))
             pairs.update((i, j) for j in older[: p.refine_partners])
         odometry = {(s, t) for s, t, _, _, unc in self._edges if not unc}
-        edges = []
-        for s, t, T, info, unc in self._edges:
-            if not unc:  # odometry: re-registered at the finer correspondence distance, kept certain
+        # every registration, in the order of its newer keyframe: each keyframe's structures are rebuilt about once
+        # a pass (:meth:`_cloud` holds ``kf_held``); the edges keep their order (odometry, then the pairs sorted)
+        jobs = [(e, s, t) for e, (s, t, _, _, unc) in enumerate(self._edges) if not unc]
+        jobs += [((s, t), s, t) for s, t in sorted(pairs - odometry)]
+        done = {}
+        for rank in sorted(range(len(jobs)), key=lambda r: (max(jobs[r][1:]), r)):
+            key = jobs[rank][0]
+            if isinstance(key, int):  # odometry: re-registered at the finer correspondence distance, kept certain
+                s, t, T, info, _ = self._edges[key]
                 a, b = self._cloud(t), self._cloud(s)
                 r = self.reg.align(a, b, T, p.loop_max_corr_m)
                 if r.fitness >= p.refine_fitness and np.all(np.isfinite(r.T_target_source)) and not _differs(
                         T, r.T_target_source, p.refine_max_m, p.refine_max_deg):
-                    T = r.T_target_source
-                    info = self.reg.information(a, b, T, p.loop_max_corr_m)
-                edges.append((s, t, T, info, False))
-            elif (s, t) not in pairs:
-                edges.append((s, t, T, info, True))
-        for s, t in sorted(pairs - odometry):
+                    done[key] = (r.T_target_source, self.reg.information(a, b, r.T_target_source, p.loop_max_corr_m))
+                continue
+            s, t = key
             init = np.linalg.inv(self.keyframes[t].T_world) @ self.keyframes[s].T_world
             a, b = self._cloud(t), self._cloud(s)
             r = self.reg.align(a, b, init, p.loop_max_corr_m)
             if r.fitness < p.refine_fitness or not np.all(np.isfinite(r.T_target_source)) or _differs(
                     init, r.T_target_source, p.refine_max_m, p.refine_max_deg):
                 continue
-            info = self.reg.information(a, b, r.T_target_source, p.loop_max_corr_m)
-            edges.append((s, t, r.T_target_source.copy(), info, True))
+            done[key] = (r.T_target_source.copy(), self.reg.information(a, b, r.T_target_source, p.loop_max_corr_m))
+        edges = []
+        for e, (s, t, T, info, unc) in enumerate(self._edges):
+            if not unc:
+                T, info = done.get(e, (T, info))
+                edges.append((s, t, T, info, False))
+            elif (s, t) not in pairs:
+                edges.append((s, t, T, info, True))
+        edges += [(s, t, *done[(s, t)], True) for s, t in sorted(pairs - odometry) if (s, t) in done]
         self._edges = edges
         self._optimise(batch=True)
         self.refinements += 1

@@ -131,3 +131,37 @@ def test_loop_candidates_stay_on_their_storey():
     assert [_storeys(np.eye(4), 4.5)._loop_candidates(new) for new in range(80)] == lists[0]
     with pytest.raises(ValueError, match="odom_sigma_up_per_m"):
         SlamParams(odom_sigma_up_per_m=-1.0).check()
+
+
+def test_final_refinement_rebuilds_each_keyframe_once_a_pass(monkeypatch):
+    """The refinement registers its edges in the order of their newer keyframe, so with ``kf_held`` keyframes held
+    a walk's keyframes each have their registration structures rebuilt once a pass (the odometry edges, then the
+    pairs, each in their own order, rebuilt every keyframe twice). The edges keep their order, so the poses are
+    those of that order bit for bit (checked on the tuning scenes when it changed, 2026-12-05)."""
+    from panovocc_cli.slam import registration
+
+    rng = np.random.default_rng(5)
+    x, side = rng.uniform(-2.0, 22.0, 6000), rng.integers(0, 3, 6000)
+    corridor = np.stack([x, np.where(side == 0, -1.0, np.where(side == 1, 1.0, rng.uniform(-1, 1, 6000))),
+                         np.where(side == 2, -1.2, rng.uniform(-1.2, 1.3, 6000))], 1)  # two walls and a floor
+    corridor = np.concatenate([corridor, [[5.0 * k, 0.9, 0.2] for k in range(5)]])  # a few posts along it
+    tr = Tracker(64, 32, SlamParams(kf_held=8, refine_passes=2))
+    n = 40
+    for i in range(n):
+        T = np.eye(4)
+        T[0, 3] = 0.4 * i
+        tr.keyframes.append(_Keyframe(i, tr.reg.prepare(corridor - T[:3, 3]), T, 0.4 * i))
+        if i:
+            info = tr.reg.information(tr.keyframes[i - 1].cloud, tr.keyframes[i].cloud,
+                                      np.linalg.inv(tr.keyframes[i - 1].T_world) @ T, tr.params.loop_max_corr_m)
+            tr._edges.append((i, i - 1, np.linalg.inv(tr.keyframes[i - 1].T_world) @ T, info, False))
+    for k in range(n):
+        tr._cloud(k)  # the last kf_held keyframes held, as after tracking
+    rebuilt = []
+    restore = registration.Registration.restore
+    monkeypatch.setattr(registration.Registration, "restore",
+                        lambda self, cloud: (rebuilt.append(id(cloud)) if cloud.handle is None else None,
+                                             restore(self, cloud))[1])
+    tr.finish()
+    assert tr.refinements == 2 and len(tr._edges) > 2 * n  # pairs beyond the odometry edges were registered
+    assert len(rebuilt) == 2 * n  # each keyframe once a pass (4 n before)
