@@ -73,6 +73,7 @@ out every one left. Maths only: no files, no printing (Open3D's console output i
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 
@@ -86,6 +87,22 @@ from .registration import BACKENDS, Cloud, Registration, erp_points
 TRACKED, KEYFRAME, RELOCALISED, LOST = "tracked", "keyframe", "relocalised", "lost"
 
 LEVEL_REFERENCES = ("keyframes", "world")  # SlamParams.level_reference
+# SlamParams.check's ranges: lengths, angles and sigmas that must be > 0; thresholds that may be 0 (0 turns a check
+# off where the field says so); inlier and normal shares in [0, 1]; counts and their least values
+POSITIVE = ("isam_relinearize", "voxel_m", "max_range_m", "max_corr_m", "max_step_m", "max_step_deg", "kf_trans_m",
+            "kf_rot_deg", "loop_radius_m", "loop_max_corr_m", "odom_sigma_per_m", "odom_sigma_deg_per_m",
+            "odom_min_sigma_m", "odom_min_sigma_deg", "loop_sigmas", "reloc_voxel_m", "refine_radius_m",
+            "heading_sigma_deg", "heading_max_deg", "level_sigma_deg", "level_max_deg")
+NON_NEGATIVE = ("min_range_m", "refine_corr_m", "guess_margin", "check_m", "check_deg", "odom_sigma_up_per_m",
+                "loop_optimise_m", "loop_optimise_deg", "reloc_margin", "reloc_distinct_m", "reloc_distinct_deg",
+                "refine_max_m", "refine_max_deg", "revise_trans_m", "revise_rot_deg", "final_revise_m",
+                "final_revise_deg")
+SHARES = ("min_fitness", "kf_fitness", "loop_fitness", "reloc_fitness", "refine_fitness", "heading_min_share",
+          "level_min_share")
+COUNTS = {"stride": 0, "min_points": 0, "loop_min_gap": 0, "loop_candidates": 0, "loop_linked": 0,
+          "refine_partners": 0, "refine_every": 0, "revise_per_frame": 0, "isam_iterations": 1, "isam_skip": 1,
+          "max_iterations": 1, "reloc_candidates": 1, "reloc_refine": 1, "refine_passes": 1, "heading_reference": 1,
+          "threads": 1, "kf_held": 2}
 LEVEL_FIRST = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 """Default pose of the first placed frame: the world is its camera frame turned so that world +Z is the
 camera's up (−y) and world +Y its forward (+z), i.e. a level first panorama gives a +Z-up world (the
@@ -184,24 +201,28 @@ class SlamParams:
     kf_held: int = 32               # keyframes that keep their registration structures (the last used; >= 2)
 
     def check(self) -> "SlamParams":
+        """The parameters themselves, or ValueError naming the first one outside its range (every number finite;
+        :data:`POSITIVE`, :data:`NON_NEGATIVE`, :data:`SHARES`, :data:`COUNTS`), an unknown choice or a
+        contradiction."""
+        for name in POSITIVE + NON_NEGATIVE + SHARES:
+            v = getattr(self, name)
+            lo_ok = v > 0 if name in POSITIVE else v >= 0
+            if not (math.isfinite(v) and lo_ok and (name not in SHARES or v <= 1)):
+                what = "> 0" if name in POSITIVE else "in [0, 1]" if name in SHARES else ">= 0"
+                raise ValueError(f"{name} must be a finite number {what}, got {v!r}")
+        for name, least in COUNTS.items():
+            if getattr(self, name) < least:
+                raise ValueError(f"{name} must be >= {least}, got {getattr(self, name)!r}")
+        if not self.min_range_m < self.max_range_m:
+            raise ValueError(f"min_range_m must be below max_range_m, got {self.min_range_m} and {self.max_range_m}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {OPTIMISERS}, got {self.optimiser!r}")
-        if self.odom_sigma_up_per_m < 0:
-            raise ValueError(f"odom_sigma_up_per_m must be >= 0 (0: as odom_sigma_per_m), got {self.odom_sigma_up_per_m}")
-        if self.revise_per_frame < 0:
-            raise ValueError(f"revise_per_frame must be >= 0 (0: every revision at once), got {self.revise_per_frame}")
         if self.heading_prior and self.optimiser != "isam2":
             raise ValueError("heading_prior needs the isam2 optimiser (GTSAM's batch solve of the refinement)")
-        if self.heading_prior and not (self.heading_sigma_deg > 0 and self.heading_max_deg > 0
-                                       and self.heading_reference >= 1):
-            raise ValueError("heading_sigma_deg and heading_max_deg must be > 0 and heading_reference >= 1")
         if self.level_prior and self.optimiser != "isam2":
             raise ValueError("level_prior needs the isam2 optimiser (GTSAM's batch solve of the refinement)")
-        if self.level_prior and not (self.level_sigma_deg > 0 and self.level_max_deg > 0
-                                     and self.heading_reference >= 1):
-            raise ValueError("level_sigma_deg and level_max_deg must be > 0 and heading_reference >= 1")
         if self.level_reference not in LEVEL_REFERENCES:
             raise ValueError(f"level_reference must be one of {LEVEL_REFERENCES}, got {self.level_reference!r}")
         return self

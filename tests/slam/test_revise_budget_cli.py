@@ -52,8 +52,8 @@ def test_heading_prior_from_the_command_line(short_seq, tmp_path, capsys):
 def test_slam_params_from_the_command_line(short_seq, tmp_path, capsys):
     """``--slam-params JSON`` sets SlamParams fields (an int where a float is expected is taken), recorded in
     config.json and slam.json; an unknown field, a value of the wrong type, text that is not a JSON object, a
-    value the parameters refuse and a run without ``--poses slam`` are each refused in one line, exit 2, nothing
-    written."""
+    value the parameters refuse (out of its range, not finite, a contradiction) and a run without ``--poses slam``
+    are each refused in one line, exit 2, nothing written."""
     base = ["--poses", "slam", "--first-pose", "reference", "--segmenter", "none", "--quiet"]
     code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "p", *base, "--slam-params",
                                     '{"refine_radius_m": 1, "refine_partners": 2, "refine": true}'])
@@ -68,7 +68,10 @@ def test_slam_params_from_the_command_line(short_seq, tmp_path, capsys):
     assert json.loads((tmp_path / "d" / "slam.json").read_text())["params"]["refine_radius_m"] == SlamParams().refine_radius_m
     for text, word in [('{"refine_radius": 1.0}', "refine_radius"), ('{"refine": 1}', "refine must be bool"),
                        ('{"refine_partners": 2.5}', "refine_partners must be int"), ("[1, 2]", "JSON object"),
-                       ("{refine: 1}", "JSON object"), ('{"backend": "icp"}', "backend must be one of")]:
+                       ("{refine: 1}", "JSON object"), ('{"backend": "icp"}', "backend must be one of"),
+                       ('{"voxel_m": 0}', "voxel_m must be a finite number > 0"),
+                       ('{"refine_radius_m": NaN}', "refine_radius_m must be a finite number"),
+                       ('{"max_range_m": 0.1}', "min_range_m must be below max_range_m")]:
         out = tmp_path / "bad"
         code, _, err = run_cli(capsys, ["map", short_seq, out, *base, "--slam-params", text])
         assert code == 2 and "--slam-params" in err and word in err and err.count("\n") == 1, (text, err)

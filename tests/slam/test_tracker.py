@@ -215,3 +215,18 @@ def test_a_poor_tracked_fit_that_stands_is_handed_out_refined(loop_seq):
     assert step.status in ("tracked", "keyframe") and step.fitness == pytest.approx(0.80)
     err = np.linalg.norm(step.T_world_cam[:3, 3] - seq.poses[2][:3, 3])
     assert err < 0.003, err  # measured under 1 mm (67.2 mm when the coarse fit stood)
+
+
+@pytest.mark.parametrize("name, value", [("voxel_m", 0.0), ("voxel_m", float("inf")), ("refine_radius_m", -1.0),
+                                         ("refine_radius_m", float("nan")), ("min_fitness", 1.5), ("check_m", -0.01),
+                                         ("refine_passes", 0), ("kf_held", 1), ("stride", -3), ("max_range_m", 0.1),
+                                         ("heading_sigma_deg", 0.0)])
+def test_params_outside_their_range_are_refused(name, value):
+    """Every number of SlamParams is checked (finite; lengths, angles and sigmas > 0; thresholds >= 0; shares in
+    [0, 1]; counts at least their least value; min_range_m below max_range_m), so a zero voxel or a negative pair
+    radius is refused, not run (the front end placed no frame with the first, and silently registered no pair with
+    the second); the fields' own zeros ("0 = off" or "auto") pass."""
+    with pytest.raises(ValueError, match=name):
+        SlamParams(**{name: value}).check()
+    SlamParams(stride=0, refine_corr_m=0.0, check_m=0.0, check_deg=0.0, loop_candidates=0, loop_linked=0,
+               refine_partners=0, refine_every=0, revise_per_frame=0, odom_sigma_up_per_m=0.0, kf_held=2).check()
