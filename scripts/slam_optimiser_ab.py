@@ -6,7 +6,8 @@ preloaded depth frames tracked once per arm, in one process, arm after arm (the 
 
 Per line: ATE RMSE and max (SE(3)-aligned, ``evaluation/trajectory.py``) of the poses handed out after the
 last frame (``before``) and after the final refinement (``after``), keyframes, loop closures, optimisations,
-lost frames; CPU (``time.process_time``): tracking per frame and the final refinement; and early vs late,
+lost frames; CPU (``time.process_time``): tracking per frame and the final refinement (and the keyframe structures
+it rebuilt, ``refine_rebuilds``); and early vs late,
 over frames 10-20 % and the last 10 %: tracking CPU per frame (``track_ms``) and the optimiser's CPU per
 keyframe created there (``opt_ms_per_kf``: iSAM2's update per keyframe and its read-backs, or Open3D's whole
 solves) and per online solve ending there (``opt_ms_per_solve``: a read-back after a disagreeing loop edge, or
@@ -73,6 +74,14 @@ def run(path: str, arm: str, kw: dict, refine: bool, log=None) -> dict:
         track[i] = time.process_time() - t
         opt[i], kfs[i] = tr.opt_s - o, len(tr.keyframes) - k
     before = _ate(tr, seq)
+    rebuilt = [0]
+    restore = tr.reg.restore
+
+    def counted(cloud):  # a compacted keyframe's structures rebuilt
+        rebuilt[0] += cloud.handle is None and len(cloud) > 0
+        return restore(cloud)
+
+    tr.reg.restore = counted
     t = time.process_time()
     tr.finish()
     fin = time.process_time() - t
@@ -90,6 +99,7 @@ def run(path: str, arm: str, kw: dict, refine: bool, log=None) -> dict:
             "max_before_mm": 1e3 * before["max"], "max_after_mm": 1e3 * after["max"], "keyframes": len(tr.keyframes),
             "loops": len(tr.loops), "optimisations": tr.optimisations, "lost": len(tr.lost),
             "track_ms_per_frame": 1e3 * float(track.mean()), "opt_s": float(opt.sum()), "refine_s": fin,
+            "refine_rebuilds": int(rebuilt[0]),
             "last_solves": [[f, k, round(1e3 * c, 2)] for f, k, c in tr.solves if f >= 0][-3:],
             "early": early, "late": late, "late_over_early_track": late["track_ms"] / early["track_ms"],
             "late_over_early_opt": late["opt_ms_per_kf"] / max(early["opt_ms_per_kf"], 1e-9)}
