@@ -74,14 +74,7 @@ def run(path: str, arm: str, kw: dict, refine: bool, log=None) -> dict:
         track[i] = time.process_time() - t
         opt[i], kfs[i] = tr.opt_s - o, len(tr.keyframes) - k
     before = _ate(tr, seq)
-    rebuilt = [0]
-    restore = tr.reg.restore
-
-    def counted(cloud):  # a compacted keyframe's structures rebuilt
-        rebuilt[0] += cloud.handle is None and len(cloud) > 0
-        return restore(cloud)
-
-    tr.reg.restore = counted
+    rebuilds = tr.rebuilds
     t = time.process_time()
     tr.finish()
     fin = time.process_time() - t
@@ -99,7 +92,7 @@ def run(path: str, arm: str, kw: dict, refine: bool, log=None) -> dict:
             "max_before_mm": 1e3 * before["max"], "max_after_mm": 1e3 * after["max"], "keyframes": len(tr.keyframes),
             "loops": len(tr.loops), "optimisations": tr.optimisations, "lost": len(tr.lost),
             "track_ms_per_frame": 1e3 * float(track.mean()), "opt_s": float(opt.sum()), "refine_s": fin,
-            "refine_rebuilds": int(rebuilt[0]),
+            "refine_rebuilds": tr.rebuilds - rebuilds,
             "last_solves": [[f, k, round(1e3 * c, 2)] for f, k, c in tr.solves if f >= 0][-3:],
             "early": early, "late": late, "late_over_early_track": late["track_ms"] / early["track_ms"],
             "late_over_early_opt": late["opt_ms_per_kf"] / max(early["opt_ms_per_kf"], 1e-9)}

@@ -34,20 +34,13 @@ def main() -> None:
     tr = Tracker(seq.meta.width, seq.meta.height, SlamParams(**json.loads(a.params)), T_world_first=seq.poses[0])
     for i in range(len(seq)):
         tr.track(i, seq.depth(i))
-    rebuilt = [0]
-    restore = tr.reg.restore
-
-    def counted(cloud):  # a compacted keyframe's structures rebuilt
-        rebuilt[0] += cloud.handle is None and len(cloud) > 0
-        return restore(cloud)
-
-    tr.reg.restore = counted
+    rebuilds = tr.rebuilds
     prof = cProfile.Profile()
     t = time.process_time()
     prof.enable()
     tr.finish()
     prof.disable()
-    print(f"finish CPU {time.process_time() - t:.2f} s, rebuilds {rebuilt[0]}, keyframes {len(tr.keyframes)}, "
+    print(f"finish CPU {time.process_time() - t:.2f} s, rebuilds {tr.rebuilds - rebuilds}, keyframes {len(tr.keyframes)}, "
           f"edges {len(tr._edges)}")
     pstats.Stats(prof).sort_stats("tottime").print_stats(a.top)
     if a.save:

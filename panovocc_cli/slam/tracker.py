@@ -329,6 +329,7 @@ class Tracker:
         self._synced = 0  # edges of self._edges already in it
         self._arrays: tuple | None = None  # (optimisations, positions, up axes, path lengths): _keyframe_arrays
         self.refinements = 0
+        self.rebuilds = 0  # keyframes whose registration structures were rebuilt from their points (:meth:`_cloud`)
         self._ref = 0
         self._last: tuple[int, np.ndarray] | None = None
         self._velocity = np.eye(4)
@@ -345,8 +346,9 @@ class Tracker:
         keep only their downsampled points, and the structures are rebuilt from them when needed (the same
         bytes: :meth:`.registration.Registration.restore`), so the store grows by the points alone."""
         cloud = self.keyframes[k].cloud
-        if cloud.handle is None:
+        if cloud.handle is None and len(cloud):
             self.reg.restore(cloud)
+            self.rebuilds += 1
         self._held[k] = None
         self._held.move_to_end(k)
         while len(self._held) > max(2, self.params.kf_held):
