@@ -1,13 +1,13 @@
 """An edge's information matrix, equal to Open3D's ``get_information_matrix_from_point_clouds`` bit for bit, without
-its KD-tree: a hash of the target's points in cells of the correspondence distance.
+its KD-tree: a hash of the target's points in cells twice the correspondence distance wide.
 
 Open3D's matrix (``EvaluateRegistration`` then ``GetInformationMatrixFromPointClouds``): every source point moved by
 ``T_target_source`` is matched to its nearest target point within ``max_corr`` (a strict radius), in source order, and
 each match adds ``g g'`` for the three rows ``g`` of ``[-[q]x | I]`` at the target point ``q`` (rotation first), entry
 by entry in that order. Open3D builds a KD-tree of the target for every call: 42 % of the final refinement's CPU on a
-building's floor (docs/slam.md, "A store that lasts"). Here the target's points are sorted into cells a
-correspondence distance wide (a point within it of a source point lies in one of the 27 cells around that point's),
-found through an open-addressing hash, and the sums are made in Open3D's order (the products with a zero entry of g
+building's floor (docs/slam.md, "A store that lasts"). Here the target's points are sorted into cells twice the
+correspondence distance wide (a point within it of a source point lies in the 2 x 2 x 2 cells on that point's side of
+its own cell's middle along each axis), found through an open-addressing hash, and the sums are made in Open3D's order (the products with a zero entry of g
 add nothing and are skipped), so the matrix is the same bytes (tested against Open3D on registered and perturbed
 pairs, tests/slam/test_information.py). Two target points exactly as far from a source point are a tie that Open3D's
 tree may break either way; here the lower index wins. Maths only.
@@ -19,7 +19,7 @@ import numba as nb
 import numpy as np
 
 _SPAN = 1 << 20  # cells either side of the origin in a key (21 bits an axis)
-_LIMIT = 100_000  # cells from the origin that a target point may lie (10 km at 0.1 m)
+_LIMIT = 100_000  # cells from the origin that a target point may lie (20 km at 0.1 m correspondences)
 
 
 @nb.njit(cache=True, inline="always")

@@ -710,10 +710,11 @@ class Tracker:
             older = sorted((j for j in near if j < i), key=lambda j: (float(np.linalg.norm(pos[i] - pos[j])), j))
             pairs.update((i, j) for j in older[: p.refine_partners])
         odometry = {(s, t) for s, t, _, _, unc in self._edges if not unc}
+        new_pairs = sorted(pairs - odometry)
         # every registration, in the order of its newer keyframe: each keyframe's structures are rebuilt about once
         # a pass (:meth:`_cloud` holds ``kf_held``); the edges keep their order (odometry, then the pairs sorted)
         jobs = [(e, s, t) for e, (s, t, _, _, unc) in enumerate(self._edges) if not unc]
-        jobs += [((s, t), s, t) for s, t in sorted(pairs - odometry)]
+        jobs += [((s, t), s, t) for s, t in new_pairs]
         done = {}
         for rank in sorted(range(len(jobs)), key=lambda r: (max(jobs[r][1:]), r)):
             key = jobs[rank][0]
@@ -740,7 +741,7 @@ class Tracker:
                 edges.append((s, t, T, info, False))
             elif (s, t) not in pairs:
                 edges.append((s, t, T, info, True))
-        edges += [(s, t, *done[(s, t)], True) for s, t in sorted(pairs - odometry) if (s, t) in done]
+        edges += [(s, t, *done[(s, t)], True) for s, t in new_pairs if (s, t) in done]
         self._edges = edges
         self._optimise(batch=True)
         self.refinements += 1

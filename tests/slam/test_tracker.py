@@ -4,6 +4,8 @@ Tolerances (256 x 128 ERP, realistic depth noise, 0.157 m and 15 degrees between
 error below 1 cm and relative rotation error below 0.15 degrees RMS when the first pose is given.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -228,5 +230,10 @@ def test_params_outside_their_range_are_refused(name, value):
     the second); the fields' own zeros ("0 = off" or "auto") pass."""
     with pytest.raises(ValueError, match=name):
         SlamParams(**{name: value}).check()
+    from panovocc_cli.slam import tracker
+
+    ranged = list(tracker.POSITIVE + tracker.NON_NEGATIVE + tracker.SHARES) + list(tracker.COUNTS)
+    numbers = [f.name for f in dataclasses.fields(SlamParams) if f.type in ("int", "float")]
+    assert sorted(ranged) == sorted(numbers)  # every number in exactly one range, and no name that is not a field
     SlamParams(stride=0, refine_corr_m=0.0, check_m=0.0, check_deg=0.0, loop_candidates=0, loop_linked=0,
                refine_partners=0, refine_every=0, revise_per_frame=0, odom_sigma_up_per_m=0.0, kf_held=2).check()
