@@ -551,6 +551,13 @@ class Mapper:
         return cls(config, frame_source=frame_source, _rpu=rpu)
 
     @_locked
+    def flush(self) -> None:
+        """Wait for the delta record being written. A failed write is undone in the memory and raised here, as
+        the next call that changes or saves the map would (``revise`` times its revisions up to their last
+        record on disk)."""
+        self._rpu._flush()
+
+    @_locked
     def close(self) -> None:
         """Finish pending delta writes and stop the writer thread (the mapper stays usable)."""
         self._rpu.close()

@@ -150,6 +150,28 @@ def test_cli_map_revise_and_bad_input(room_seq, tmp_path, capsys):
     assert code == 0
 
 
+def test_revise_prints_the_cost_of_its_revisions_alone(room_seq, tmp_path, capsys):
+    """``revise`` prints the wall and CPU time of the revisions themselves (frames read, deltas swapped, records
+    written; not the load or the export), the figure ``make bench-scale`` reads for a loop closure inside a run."""
+    import re
+
+    from panovocc_cli.benchmark.scale import moved_tail, revisions_cost
+    from panovocc_cli.cli import main
+    from panovocc_cli.io.poses import read_poses
+
+    out = tmp_path / "o"
+    run_map(_cfg(room_seq, out, checkpoint_every=0), progress=False)
+    write_poses(tmp_path / "moved.txt", moved_tail(read_poses(room_seq / "poses.txt"), 3))
+    with pytest.raises(SystemExit) as e:
+        main(["revise", str(out), str(tmp_path / "moved.txt"), "--quiet"])
+    text = capsys.readouterr().out
+    assert e.value.code == 0 and "revised 3 of 5 frames" in text
+    wall, cpu = revisions_cost(text)
+    assert 0 < wall <= float(re.search(r"frames in ([0-9.]+) s", text).group(1)) and cpu > 0
+    with pytest.raises(SystemExit, match="no figures"):
+        revisions_cost("revised 3 of 5 frames in 1.00 s: 10 occupied, 20 free voxels")
+
+
 @pytest.mark.parametrize("existed", [False, True])
 def test_map_failing_before_config_leaves_no_folder_it_created(room_seq, tmp_path, monkeypatch, existed):
     from panovocc_cli.io import mapstore
