@@ -36,6 +36,7 @@ SEMANTIC_FORMAT = 4  # the first format whose semantic channels this panovocc re
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 FIRST_POSE_REFERENCE = "reference"  # --first-pose reference: the reference trajectory's pose of the first frame
+SLAM_PRESETS = ("default", "building")  # --slam-preset: the names of slam.tracker.PRESETS (tested equal)
 PLY_COLORS = ("class", "rgb", "height")
 
 
@@ -220,6 +221,11 @@ class MapConfig:
     heading_prior: bool = option(False, help="With --poses slam: the final refinement holds each keyframe's heading to "
                                              "the walls it sees (perpendicular walls, modulo 90 deg, as the first "
                                              "keyframes see them): for buildings, whose stairs turn a floor a little.")
+    slam_preset: str = option("default", choices=SLAM_PRESETS,
+                              help="With --poses slam: a named set of front-end parameters: default | building "
+                                   "(a multi-storey walk with long corridors: the final refinement's pairs within "
+                                   "1 m, each keyframe's heading held to its walls and its tilt to its floors; "
+                                   "docs/slam.md). --slam-params and --heading-prior apply on top.")
     slam_params: str | None = option(None, cli_type=str, parse=parse_slam_params, metavar="JSON", show_default=False,
                                      help="With --poses slam: front-end parameters other than the defaults, a JSON "
                                           "object of SlamParams fields (docs/slam.md), e.g. "
@@ -263,6 +269,8 @@ class MapConfig:
             del d["heading_prior"]
         if d["slam_params"] is None:  # and before --slam-params
             del d["slam_params"]
+        if d["slam_preset"] == "default":  # and before --slam-preset
+            del d["slam_preset"]
         d["format_version"] = FORMAT_VERSION
         return d
 
@@ -277,6 +285,7 @@ class MapConfig:
                        checkpoint_every=int(d["checkpoint_every"]), frame_times=d.get("frame_times"),
                        revise_per_frame=int(d.get("revise_per_frame", 0)),
                        heading_prior=bool(d.get("heading_prior", False)),
+                       slam_preset=_slam_preset(d.get("slam_preset", "default")),
                        slam_params=None if d.get("slam_params") is None else parse_slam_params(d["slam_params"]),
                        frames=None if d.get("frames") is None else parse_frames(d["frames"]),
                        geometry=g, occupancy=o, origin=origin,
@@ -293,6 +302,12 @@ class MapConfig:
     def mapper_config(self) -> "MapperConfig":
         """The mapper's part of a resolved config (the vocabulary is empty for ``--segmenter none``)."""
         return MapperConfig.of(self.geometry, self.occupancy, self.semantic, self.origin)
+
+
+def _slam_preset(name) -> str:
+    if name not in SLAM_PRESETS:
+        raise ValueError(f"slam_preset {name!r} is not one of {', '.join(SLAM_PRESETS)}")
+    return str(name)
 
 
 def _read_sections(d, where) -> tuple[GeometryParams, OccupancyParams, SemanticParams, list | None]:

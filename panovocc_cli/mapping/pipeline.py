@@ -572,6 +572,8 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.heading_prior and cfg.poses != POSES_SLAM:
             raise PanovoccError("--heading-prior holds the headings of --poses slam's keyframes; a pose file is not "
                                 "refined")
+        if cfg.slam_preset != "default" and cfg.poses != POSES_SLAM:
+            raise PanovoccError("--slam-preset sets the parameters of --poses slam's front end; a pose file has none")
         if cfg.slam_params is not None and cfg.poses != POSES_SLAM:
             raise PanovoccError("--slam-params sets the parameters of --poses slam's front end; a pose file has none")
         if cfg.first_pose is not None and cfg.poses != POSES_SLAM:

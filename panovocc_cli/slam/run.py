@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, MapConfig, frame_ids
-from .tracker import SlamParams, Tracker
+from .tracker import PRESETS, SlamParams, Tracker
 
 SLAM_JSON = "slam.json"
 TRAJECTORY_TUM = "trajectory.tum"
@@ -155,6 +155,8 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     from ..mapping.pipeline import run_map
 
     cfg = dataclasses.replace(cfg, poses=POSES_SLAM)
+    if cfg.slam_preset != "default":  # --slam-preset NAME, then --slam-params on top of it
+        params = dataclasses.replace(params or SlamParams(), **PRESETS[cfg.slam_preset]).check()
     if cfg.slam_params is not None:  # --slam-params JSON (the flags below take precedence)
         params = slam_params(cfg.slam_params, params)
     if cfg.revise_per_frame:  # --revise-per-frame K

@@ -87,6 +87,16 @@ from .registration import BACKENDS, Cloud, Registration, erp_points
 TRACKED, KEYFRAME, RELOCALISED, LOST = "tracked", "keyframe", "relocalised", "lost"
 
 LEVEL_REFERENCES = ("keyframes", "world")  # SlamParams.level_reference
+PRESETS = {
+    "default": {},
+    # a multi-storey walk with long corridors (docs/slam.md, "The building's tilt, and a level prior"): the final
+    # refinement's pairs within 1 m (longer ones along a corridor stretch it), each keyframe's heading held to its
+    # walls and its roll and pitch to its floors and ceilings. Not every scene's default: on the Results houses 2
+    # and 3 it costs a point of IoU (docs/slam.md, "The building recipe as every scene's default?").
+    "building": {"refine_radius_m": 1.0, "heading_prior": True, "level_prior": True},
+}
+"""Named sets of :class:`SlamParams` fields (``map --poses slam --slam-preset NAME``), applied to the defaults
+before ``--slam-params``."""
 # SlamParams.check's ranges: lengths, angles and sigmas that must be > 0; thresholds that may be 0 (0 turns a check
 # off where the field says so); inlier and normal shares in [0, 1]; counts and their least values
 POSITIVE = ("isam_relinearize", "voxel_m", "max_range_m", "max_corr_m", "max_step_m", "max_step_deg", "kf_trans_m",

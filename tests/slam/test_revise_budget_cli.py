@@ -1,6 +1,6 @@
 """``panovocc map SEQ OUT --poses slam`` with the front end's options: ``--revise-per-frame K`` (the tracker's
-revision budget, ``SlamParams.revise_per_frame``), ``--heading-prior`` and ``--slam-params JSON`` (any
-``SlamParams`` field) from the command line, recorded in config.json and slam.json; refused without
+revision budget, ``SlamParams.revise_per_frame``), ``--heading-prior``, ``--slam-preset NAME`` and
+``--slam-params JSON`` (any ``SlamParams`` field) from the command line, recorded in config.json and slam.json; refused without
 ``--poses slam`` (issue 22)."""
 
 import json
@@ -80,3 +80,36 @@ def test_slam_params_from_the_command_line(short_seq, tmp_path, capsys):
                                     "--slam-params", '{"refine_radius_m": 1.0}'])
     assert code == 2 and "--slam-params" in err and err.count("\n") == 1, err
     assert not (tmp_path / "m").exists()
+
+
+def test_slam_preset_from_the_command_line(short_seq, tmp_path, capsys):
+    """``--slam-preset building`` sets the building recipe's fields (slam.json's params, and its heading and level
+    figures), ``--slam-params`` applies on top of it, config.json records it (and nothing for the default, as
+    before the option); an unknown name and a run without ``--poses slam`` are refused in one line, exit 2,
+    nothing written. The option's names are the tracker's presets."""
+    from panovocc_cli.mapping.config import SLAM_PRESETS
+    from panovocc_cli.slam.tracker import PRESETS
+
+    assert tuple(PRESETS) == SLAM_PRESETS and PRESETS["default"] == {}
+    base = ["--poses", "slam", "--first-pose", "reference", "--segmenter", "none", "--quiet"]
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "b", *base, "--slam-preset", "building"])
+    assert code == 0, err
+    assert json.loads((tmp_path / "b" / "config.json").read_text())["slam_preset"] == "building"
+    info = json.loads((tmp_path / "b" / "slam.json").read_text())
+    assert {k: info["params"][k] for k in PRESETS["building"]} == PRESETS["building"]
+    assert info["heading"]["priors"] >= 1 and info["level"]["priors"] >= 1
+    assert SlamParams().refine_radius_m != 1.0 and not SlamParams().heading_prior and not SlamParams().level_prior
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "o", *base, "--slam-preset", "building",
+                                    "--slam-params", '{"refine_radius_m": 2.0}'])
+    assert code == 0, err
+    got = json.loads((tmp_path / "o" / "slam.json").read_text())["params"]
+    assert got["refine_radius_m"] == 2.0 and got["heading_prior"] and got["level_prior"]
+    code, _, err = run_cli(capsys, ["map", short_seq, tmp_path / "d", *base, "--slam-preset", "default"])
+    assert code == 0, err
+    assert "slam_preset" not in json.loads((tmp_path / "d" / "config.json").read_text())
+    for args, word in [([*base, "--slam-preset", "house"], "--slam-preset"),
+                       (["--segmenter", "none", "--quiet", "--slam-preset", "building"], "--slam-preset")]:
+        out = tmp_path / "bad"
+        code, _, err = run_cli(capsys, ["map", short_seq, out, *args])
+        assert code == 2 and word in err and err.count("\n") == 1, (args, err)
+        assert not out.exists()
