@@ -41,6 +41,7 @@ one voxel: 2^35); the memory widens int32 to int64 as needed and refuses sums pa
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from ..semantics.params import EvidenceWeights
@@ -83,6 +84,48 @@ def distribution_steps(D: np.ndarray, steps: int = D_STEPS) -> np.ndarray:
     return f.astype(np.int64) + (rank < rest[:, None])
 
 
+@nb.njit(cache=True, nogil=True)
+def _weighted_steps(E, S_f, s, steps, out):
+    """``out[i] = s[i] * distribution_steps(E[i] / S_f[i], steps)`` for the rows with ``s[i] > 0``, zeros for the
+    others: :func:`quantize_semantic_delta`'s class evidence a row at a time, without its (n, C) temporaries
+    (seven of them at the peak of a frame's semantic update). The same operations on each value as the numpy
+    formulation: ``x = (E / S_f) * steps``, ``f = floor(x)``, the ``steps - sum(f)`` left over (the floors are
+    integers, so their sum is exact in any order) clipped to [0, C], and one more step each to that many
+    classes of the largest ``x - f``, the lower class first on ties (a stable sort's order). A row whose
+    distribution sums to 0 gets none; ``E`` is non-negative (weights times probabilities), so that is a row
+    without a positive entry."""
+    n, C = E.shape
+    x = np.empty(C, np.float64)
+    r = np.empty(C, np.float64)
+    taken = np.empty(C, np.bool_)
+    for i in range(n):
+        if s[i] <= 0:
+            for c in range(C):
+                out[i, c] = 0
+            continue
+        fsum = 0.0
+        positive = False
+        for c in range(C):
+            d = E[i, c] / S_f[i]
+            positive = positive or d > 0
+            xc = d * steps
+            fc = np.floor(xc)
+            x[c] = fc
+            r[c] = xc - fc
+            fsum += fc
+            taken[c] = False
+        rest = np.int64(steps - fsum) if positive else 0
+        rest = min(max(rest, 0), C)
+        for _ in range(rest):
+            best = -1
+            for c in range(C):
+                if not taken[c] and (best < 0 or r[c] > r[best]):
+                    best = c
+            taken[best] = True
+        for c in range(C):
+            out[i, c] = s[i] * (np.int64(x[c]) + (1 if taken[c] else 0))
+
+
 def distribution_evidence(D: np.ndarray, S: np.ndarray) -> np.ndarray:
     """Class evidence in ``E``'s form from distributions ``D`` (n, C) and stored weights ``S`` (n,) or (n, 1)
     (``64 s``): ``s * distribution_steps(D)``, rows summing to ``S`` (a relabelled map's evidence, e.g. from
@@ -102,13 +145,13 @@ def quantize_semantic_delta(keys: np.ndarray, channels: dict) -> Delta:
     count = np.asarray(channels["count"], np.int64).reshape(-1, 1)
     s = np.rint(S_f * S_STEPS).astype(np.int64)
     has = s > 0
-    D = np.zeros(np.shape(channels["E"]), np.float64)
-    D[has] = np.asarray(channels["E"], np.float64)[has] / S_f[has, None]
-    d = distribution_steps(D)
+    E = np.ascontiguousarray(channels["E"], np.float64)
+    e = np.empty(E.shape, np.int64)  # s * distribution_steps(E / S_f), row by row (no (n, C) temporaries)
+    _weighted_steps(E, S_f, s, np.float64(D_STEPS), e)
     k = np.maximum(count, 1)
     normal = np.rint(np.asarray(channels["normal_sum"], np.float64) * NORMAL_STEPS / k).astype(np.int64)
     rgb = np.rint(np.asarray(channels["rgb_sum"], np.float64) / k).astype(np.int64)
-    out = {"E": s[:, None] * d, "S": (D_STEPS * s)[:, None], "rgb_sum": count * rgb, "normal_sum": count * normal,
+    out = {"E": e, "S": (D_STEPS * s)[:, None], "rgb_sum": count * rgb, "normal_sum": count * normal,
            "count": count}
     if "Z" in channels:  # the weighted mean feature (within the int8 range: a mean of int8 values), times s
         Zf = np.asarray(channels["Z"], np.float64)

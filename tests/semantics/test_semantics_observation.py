@@ -60,6 +60,39 @@ def test_distribution_steps_sum_exactly_and_round_to_nearest():
     np.testing.assert_array_equal(distribution_steps(np.zeros((2, 4))), np.zeros((2, 4)))
 
 
+def test_class_evidence_kernel_equals_the_numpy_steps():
+    """quantize_semantic_delta's class evidence, computed a row at a time (``_weighted_steps``), equals
+    ``s * distribution_steps(E / S)`` of the numpy formulation on every row: random distributions, ties of the
+    remainders (uniform rows over 3, 5, 7 and 12 classes, halves), one-hot rows, rows without weight or without
+    evidence, tiny and large weights, and E that does not sum to S (rounding of the float sums)."""
+    from panovocc_cli.mapping.contributors import _weighted_steps
+
+    rng = np.random.default_rng(7)
+    for C in (1, 3, 7, 12, 33):
+        n = 500
+        S = rng.uniform(0, 6, n)
+        E = rng.dirichlet(np.full(C, 0.5), n) * S[:, None]
+        E[:40] = S[:40, None] / C  # uniform rows: every remainder the same
+        E[40:60] = 0.0
+        E[40:60, rng.integers(0, C, 20)] = S[40:60]  # one-hot
+        E[60:80] *= 1 + rng.normal(0, 1e-9, (20, C)) ** 2  # sums a little off S
+        E[80:90] = 0.0  # weight but no class evidence
+        S[90:100] = rng.uniform(0, 1 / (2 * S_STEPS), 10)  # below half a step: no evidence
+        S[100:110] = rng.uniform(1e3, 1e4, 10)
+        E[100:110] = rng.dirichlet(np.ones(C), 10) * S[100:110, None]
+        if C % 2 == 1 and C > 1:
+            E[110:120] = 0.0
+            E[110:120, :2] = S[110:120, None] / 2  # halves
+        s = np.rint(S * S_STEPS).astype(np.int64)
+        has = s > 0
+        D = np.zeros((n, C))
+        D[has] = E[has] / S[has, None]
+        want = s[:, None] * distribution_steps(D)
+        got = np.empty((n, C), np.int64)
+        _weighted_steps(np.ascontiguousarray(E), S, s, np.float64(D_STEPS), got)
+        np.testing.assert_array_equal(got, want, err_msg=f"C={C}")
+
+
 def test_integer_semantic_delta_factors_and_sums():
     rng = np.random.default_rng(1)
     n, C = 200, 7
