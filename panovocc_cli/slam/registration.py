@@ -132,11 +132,12 @@ class Registration:
         self.restore(cloud)
         return cloud
 
-    def restore(self, cloud: Cloud) -> None:
+    def restore(self, cloud: Cloud) -> bool:
         """Rebuild the structures of a compacted ``cloud`` from its (already downsampled) points: the same
-        bytes as :meth:`prepare` built (small_gicp: its KD-tree and covariances of the same points)."""
+        bytes as :meth:`prepare` built (small_gicp: its KD-tree and covariances of the same points). True when
+        it built them; False for a cloud that has them already or has no points."""
         if cloud.handle is not None or len(cloud) == 0:
-            return
+            return False
         if self.backend == "small_gicp":
             import small_gicp
 
@@ -144,13 +145,14 @@ class Registration:
             tree = small_gicp.KdTree(pc, num_threads=self.threads)
             small_gicp.estimate_covariances(pc, tree, num_neighbors=NEIGHBORS, num_threads=self.threads)
             cloud.handle = (pc, tree)
-            return
+            return True
         import open3d as o3d
 
         with open3d_threads(self.threads):
             pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points.astype(np.float64)))
             pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * self.voxel_m, max_nn=20))
         cloud.handle = cloud._o3d = pc
+        return True
 
     def align(self, target: Cloud, source: Cloud, init_T_target_source: np.ndarray, max_corr_m: float) -> RegResult:
         """Register ``source`` onto ``target`` from the initial guess (4, 4); ``max_corr_m`` metres."""

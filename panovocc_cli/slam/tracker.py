@@ -356,8 +356,7 @@ class Tracker:
         keep only their downsampled points, and the structures are rebuilt from them when needed (the same
         bytes: :meth:`.registration.Registration.restore`), so the store grows by the points alone."""
         cloud = self.keyframes[k].cloud
-        if cloud.handle is None and len(cloud):
-            self.reg.restore(cloud)
+        if self.reg.restore(cloud):
             self.rebuilds += 1
         self._held[k] = None
         self._held.move_to_end(k)
