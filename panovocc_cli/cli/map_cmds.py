@@ -189,6 +189,22 @@ def revise(o: OptionValues) -> None:
                f"{s['free']} free voxels")
 
 
+@app.command("compact")
+def compact_cmd(out: Path = typer.Argument(..., help="A map folder (map, revise or merge output).")) -> None:
+    """Drop the delta records no frame keeps any more (a revised frame's earlier poses, removed frames) from
+    OUT/deltas: the map, its exports and the kept records do not change. Checkpoints and saves do this on
+    their own once the dead records pass half the live ones; this does it now, for every shard."""
+    from ..mapping.pipeline import run_compact
+
+    s = run_compact(out)
+    if s["after"] == s["before"]:
+        typer.echo(f"nothing to compact: {s['frames']} frames, delta log {s['before'] / 1e6:.1f} MB in "
+                   f"{s['shards']} shard file(s)")
+        return
+    typer.echo(f"compacted the delta log of {s['frames']} frames: {s['before'] / 1e6:.1f} MB -> "
+               f"{s['after'] / 1e6:.1f} MB in {s['shards']} shard file(s)")
+
+
 @config_command(app, SegevalConfig, "segeval")
 def segeval(o: OptionValues, quiet: bool = typer.Option(False, "--quiet", help="No progress bar.")) -> None:
     """A segmenter's own per-frame 2D mIoU on a labelled sequence (pixel counts pooled over frames)."""

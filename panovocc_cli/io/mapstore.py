@@ -608,6 +608,7 @@ COMMIT_MAGIC = b"PVC1"
 JOURNAL_NAME = "commits.pvj"
 PUT, DROP = 1, 2
 _HEADER = struct.Struct("<4sB3xqQI4x")
+RECORD_HEADER_BYTES = _HEADER.size
 _ENTRY = struct.Struct("<4sqqI")  # magic, shard, end, CRC-32 of the 20 bytes before it
 
 
@@ -882,7 +883,51 @@ class DeltaLog:
             raise PanovoccError(f"delta record at byte {off} is damaged (the map folder was changed)", path)
         return payload
 
+    def shard_sizes(self) -> dict[int, int]:
+        """Bytes of each shard file the log holds, by shard number (the current shard's: its end)."""
+        out = {s: shard_path(self.folder, s).stat().st_size for s in shard_ids(self.folder)}
+        if self.shard in out or self.end:
+            out[self.shard] = self.end
+        return out
+
+    def headers(self, shard: int) -> list[tuple[int, int, tuple[int, int, int]]]:
+        """A committed shard's records as (kind, frame id, location), from their headers alone (their payloads
+        are checked when read)."""
+        path = shard_path(self.folder, shard)
+        limit = self.end if shard == self.shard else path.stat().st_size
+        out, pos = [], 0
+        with open(path, "rb") as f:
+            while pos < limit:
+                f.seek(pos)
+                head = f.read(_HEADER.size)
+                if len(head) < _HEADER.size or _HEADER.unpack(head)[0] != RECORD_MAGIC:
+                    raise PanovoccError(f"delta record at byte {pos} is damaged (the map folder was changed)", path)
+                _, kind, fid, length, _ = _HEADER.unpack(head)
+                out.append((kind, fid, (shard, pos + _HEADER.size, length)))
+                pos += _HEADER.size + length
+        return out
+
     # -- writing ---------------------------------------------------------------------------------
+    def roll(self) -> None:
+        """Close the current shard: the next record starts a new one (a compaction that rewrites every shard)."""
+        if self.end:
+            self.close()
+            self.shard, self.end = self.shard + 1, 0
+
+    def cut_to(self, pos: tuple[int, int]) -> None:
+        """Cut what was appended after ``pos`` (a position reached since the last commit: a failed
+        compaction's copies)."""
+        self.close()
+        self._cut(*pos)
+        self.shard, self.end = _pos_key(pos)
+
+    def remove_shards(self, shards) -> None:
+        """Delete shard files whose every live record was rewritten at the log's end (and committed)."""
+        for s in shards:
+            if s >= self.shard:
+                raise ValueError(f"shard {s} is not closed")
+            shard_path(self.folder, s).unlink(missing_ok=True)
+
     def append(self, kind: int, frame_id: int, payload: bytes) -> tuple[int, int, int]:
         """Append one record; its location. A failed write is cut off again and re-raised."""
         if self._f is None or self.end >= SHARD_BYTES:

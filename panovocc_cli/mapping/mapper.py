@@ -491,6 +491,14 @@ class Mapper:
         self._rpu.checkpoint(background)
 
     @_locked
+    def compact(self) -> tuple[int, int]:
+        """Rewrite the folder's delta log so it holds only the kept deltas (a revised frame's earlier records
+        and a removed frame's are dropped; the memory does not change); the log's bytes before and after.
+        Checkpoints and saves compact on their own once the dead records pass half the live ones
+        (:meth:`.rpu.DeltaStore.compaction_victims`)."""
+        return self._rpu.compact()
+
+    @_locked
     def save(self, folder: str | Path | None = None, *, background: bool | str = False) -> Path:
         """Persist the map into ``folder`` (default: the mapper's own folder) and return it.
 

@@ -757,6 +757,23 @@ def run_revise(cfg: ReviseConfig | str | Path, poses_path: str | Path | None = N
         return _run_revise(out, cfg.poses, cfg.progress)
 
 
+def run_compact(out: str | Path) -> dict:
+    """Rewrite a map folder's delta log so it holds only the kept deltas (:meth:`.rpu.ReversibleMemory.compact`):
+    the records of a revised frame's earlier poses and of removed frames are dropped; the memory, its
+    exports and every kept record's bytes stay as they are. A map whose log holds no dead record is left
+    as it is. Returns {"frames", "before", "after" (log bytes), "shards" (files after)}."""
+    out = Path(out)
+    with _writer_lock(out):
+        _require_deltas(out)
+        mapper = Mapper.load(out)
+        try:
+            before, after = mapper.compact()
+            frames = len(mapper)
+        finally:
+            mapper.close()
+    return {"frames": frames, "before": before, "after": after, "shards": len(mapstore.shard_ids(out))}
+
+
 REVISE_GSC_BLOCK = 128
 """GSC cube side of ``revise``'s export (``map``'s is :data:`~..semantics.gsc.BLOCK`, 64): the same labels, about
 a quarter less CPU on the building (fewer halo voxels consolidated twice) for a larger working set, which

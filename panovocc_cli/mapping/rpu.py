@@ -38,6 +38,12 @@ from ..io import mapstore
 from .memory import Delta, FrameDelta, VoxelMemory
 
 SNAPSHOT_NAME = "snapshot.npz"  # in deltas/: the memory snapshot's place in the log
+#: A commit compacts the delta log once the dead records of its closed shards pass this share of the live
+#: records' bytes (and one shard): the log then stays below about (1 + this) times its live records.
+COMPACT_DEAD_SHARE = 0.5
+#: ... rewriting the closed shards whose live records are at most this share of their bytes.
+COMPACT_LIVE_SHARE = 0.5
+EVERY = "every"  # DeltaStore.commit(compact=EVERY): rewrite every shard that holds a dead record
 FROZEN = "frozen"  # ReversibleMemory.save(background=FROZEN): streamed on the writer thread, the memory left as it is
 LEGACY = -1  # shard number of a frame whose delta is a file of its own (maps made before the log)
 
@@ -152,6 +158,7 @@ class DeltaStore:
         self._writer = None
         # the pending append: (frame id, [its delta, or its record once encoded], old delta, old pose, old location)
         self._inflight = None
+        self.compactions: list[tuple[int, int, int]] = []  # each compaction's shards and bytes deleted, bytes copied
         if self.folder is not None and self._log is None:
             if has_store(self.folder):
                 raise PanovoccError("already holds a map (reopen it with Mapper.load)", self.folder)
@@ -208,7 +215,7 @@ class DeltaStore:
 
     def nbytes(self) -> int:
         """Bytes of the kept deltas on disk (the log's live records; 0 in RAM)."""
-        return sum(int(loc[2]) + 32 for loc in self._locs.values() if loc[0] != LEGACY)
+        return sum(int(loc[2]) + mapstore.RECORD_HEADER_BYTES for loc in self._locs.values() if loc[0] != LEGACY)
 
     # -- changes ---------------------------------------------------------------------------------
     def put(self, frame_id: int, delta: "Delta | FrameDelta", T_world_cam: np.ndarray,
@@ -305,16 +312,85 @@ class DeltaStore:
                 self._writer = None
 
     # -- persistence -----------------------------------------------------------------------------
-    def commit(self, background: bool = False, before=None, after=None) -> None:
+    def live_bytes(self) -> dict[int, tuple[int, int]]:
+        """Each shard of the log as (its bytes, the bytes of its live records), by shard number. A record is
+        live while it is its frame's kept delta: a revision or a removal leaves the frame's earlier one dead."""
+        sizes = self._log.shard_sizes()
+        live = dict.fromkeys(sizes, 0)
+        for loc in self._locs.values():
+            if loc[0] != LEGACY:
+                live[loc[0]] = live.get(loc[0], 0) + int(loc[2]) + mapstore.RECORD_HEADER_BYTES
+        return {s: (sizes.get(s, 0), v) for s, v in sorted(live.items())}
+
+    def compaction_victims(self, every: bool = False) -> list[int]:
+        """The closed shards a compaction rewrites now: none until the dead bytes of the closed shards pass
+        :data:`COMPACT_DEAD_SHARE` of the live bytes and one shard's size; then each closed shard whose live
+        records are at most :data:`COMPACT_LIVE_SHARE` of its bytes (rewriting them costs at most what it
+        frees). ``every``: each closed shard holding a dead byte."""
+        if self.folder is None or self._log is None:
+            return []
+        shards = self.live_bytes()
+        closed = {s: v for s, v in shards.items() if s != self._log.shard}
+        if every:
+            return [s for s, (size, live) in closed.items() if live < size]
+        dead = sum(size - live for size, live in closed.values())
+        if dead <= max(COMPACT_DEAD_SHARE * sum(live for _, live in shards.values()), mapstore.SHARD_BYTES):
+            return []
+        return [s for s, (size, live) in closed.items() if live <= COMPACT_LIVE_SHARE * size]
+
+    def _rewrite(self, victims: list[int]) -> int:
+        """Append the live records of ``victims`` again at the log's end (their payloads as they are, in log
+        order) and point the frames at the copies; a DROP in a victim is appended again for a frame not kept
+        whose earlier PUT is in a shard that stays. A failed write cuts the copies off again and the
+        store is as it was (one line). Returns the bytes copied."""
+        log, vs = self._log, set(victims)
+        pos, old = (log.shard, log.end), dict(self._locs)
+        moving = sorted((loc, fid) for fid, loc in self._locs.items() if loc[0] in vs)
+        drops = {fid for s in victims for kind, fid, _ in log.headers(s) if kind == mapstore.DROP and fid not in self.poses}
+        if drops:  # a DROP matters only while a shard that stays holds an earlier (dead) PUT of its frame
+            stay = [s for s, (size, live) in self.live_bytes().items() if s not in vs and live < size]
+            drops &= {fid for s in stay for kind, fid, _ in log.headers(s) if kind == mapstore.PUT}
+        try:
+            for loc, fid in moving:
+                self._locs[fid] = log.append(mapstore.PUT, fid, log.read(loc))
+            for fid in sorted(drops):
+                log.append(mapstore.DROP, fid, b"")
+        except OSError as e:
+            self._locs = old
+            log.cut_to(pos)
+            raise PanovoccError(f"cannot compact the delta log ({e.strerror or e}); the map is as it was",
+                                mapstore.shard_path(self.folder, log.shard)) from None
+        return sum(int(loc[2]) + mapstore.RECORD_HEADER_BYTES for loc, _ in moving)
+
+    def commit(self, background: bool = False, before=None, after=None, compact: bool | str = True) -> None:
         """A checkpoint: every kept delta on disk, ``before()`` (if given: the snapshot files of a save),
         then a journal entry (fsync'd), then ``after()`` (if given: what must follow the commit, a save's
-        poses.txt); on the writer thread with ``background``."""
+        poses.txt); on the writer thread with ``background``.
+
+        ``compact``: when the log's dead records have grown past :meth:`compaction_victims`' bound, the live
+        records of the mostly dead shards are appended again first (here, before any background work) and
+        the shards deleted once the commit is made; :data:`EVERY`: every shard holding a dead record (the
+        current one closed first). A checkpoint that deletes shards deletes ``deltas/snapshot.npz`` before
+        them (its record locations may be theirs): the next opening rebuilds the memory from the log."""
         self.flush()
+        victims = []
+        if compact and self.folder is not None and self._log is not None:
+            size, live = self.live_bytes().get(self._log.shard, (0, 0))
+            if compact == EVERY and live < size:
+                self._log.roll()  # the current shard holds a dead record: rewritten too
+            victims = self.compaction_victims(every=compact == EVERY)
+            if victims:
+                freed = sum(self._log.shard_sizes()[s] for s in victims)
+                self.compactions.append((len(victims), freed, self._rewrite(victims)))
 
         def finish():
             if before is not None:
                 before()
-            self._log.commit(compact=before is not None)
+            self._log.commit(compact=before is not None or bool(victims))
+            if victims:
+                if before is None:
+                    (self.folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME).unlink(missing_ok=True)
+                self._log.remove_shards(victims)
             if after is not None:
                 after()
 
@@ -358,6 +434,16 @@ class DeltaStore:
         ids = np.asarray(self.ids(), np.int64)
         locs = np.asarray([self._locs[i] for i in ids], np.int64).reshape(-1, 3)
         return {"frame_ids": ids, "locations": locs, "log_end": np.asarray([self._log.shard, self._log.end], np.int64)}
+
+
+def _write_snapshot_index(store: DeltaStore, memory_sha256: str) -> None:
+    """``deltas/snapshot.npz``: where the kept records are and the snapshot's place in the log (call before the
+    commit that makes them so), for the ``memory.npz`` of SHA-256 ``memory_sha256``."""
+    from ..io.npz import write_npz
+
+    index = store.snapshot_index()
+    index["memory_sha256"] = np.array(memory_sha256)
+    write_npz(store.folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
 
 
 def _read_snapshot(folder: Path, memory_path: Path):
@@ -460,7 +546,7 @@ class ReversibleMemory:
             raise PanovoccError("a checkpoint needs a folder (this memory keeps its deltas in RAM)")
         self.store.commit(background)
 
-    def save(self, folder: str | Path, background: bool | str = False, after=None) -> None:
+    def save(self, folder: str | Path, background: bool | str = False, after=None, compact: bool | str = True) -> None:
         """Persist into ``folder``: every kept delta and a COMMIT, then the memory snapshot ``memory.npz``
         and ``deltas/snapshot.npz``; then ``after()`` (if given), once the commit is made.
 
@@ -489,15 +575,31 @@ class ReversibleMemory:
         memory, store = self.memory, self.store
 
         def write():  # before the commit: a failure here leaves the folder's committed state as it was
-            index = store.snapshot_index()
             mapstore.write_memory(folder, memory.chunked() if arrays is None else arrays, len(ids), poses,
                                   None if plain else ids)
-            index["memory_sha256"] = np.array(sha256_file(folder / mapstore.MEMORY_NAME))
-            from ..io.npz import write_npz
+            _write_snapshot_index(store, sha256_file(folder / mapstore.MEMORY_NAME))
 
-            write_npz(folder / mapstore.DELTAS_DIR / SNAPSHOT_NAME, index, compresslevel=1)
+        store.commit(bool(background), before=write, after=after, compact=compact)
 
-        store.commit(bool(background), before=write, after=after)
+    def compact(self) -> tuple[int, int]:
+        """Rewrite every shard of the folder's log that holds a dead record (a revised frame's earlier
+        record, a removed frame's), so the log holds only the kept deltas; the memory does not change.
+        Returns the log's bytes before and after. A memory loaded as ``memory.npz`` holds (no record after
+        its snapshot) keeps that file: only the snapshot index is written again; else :meth:`save`."""
+        self._flush()
+        store = self.store
+        if store.folder is None:
+            raise PanovoccError("compaction needs a folder (this memory keeps its deltas in RAM)")
+        shards = store.live_bytes()
+        before = sum(size for size, _ in shards.values())
+        if all(live == size for size, live in shards.values()):
+            return before, before  # no dead record: the folder is left as it is
+        if self.loaded_snapshot is None:
+            self.save(store.folder, compact=EVERY)
+        else:
+            sha = self.loaded_snapshot
+            store.commit(before=lambda: _write_snapshot_index(store, sha), compact=EVERY)
+        return before, sum(store._log.shard_sizes().values())
 
     def rollback(self) -> None:
         """After a failed command: cut the uncommitted records (the memory object is not usable after)."""
