@@ -160,6 +160,10 @@ def _report(summary: dict) -> None:
                    f"of delta records ({st['record_bytes'] / max(st['frames'], 1) / 1e6:.3f} MB a frame) and "
                    f"{st['partial_bytes'] / 1e6:.1f} MB of partial memories (to this process: {st['root_bytes'] / 1e6:.1f} MB of "
                    "sums)")
+    if "compactions" in summary:
+        c = summary["compactions"]
+        typer.echo(f"delta log: {c['log_bytes'] / 1e6:.1f} MB; {c['count']} compaction(s) deleted {c['shards']} shard "
+                   f"file(s), {c['freed_bytes'] / 1e6:.1f} MB, copying {c['copied_bytes'] / 1e6:.1f} MB of live records")
     if "slam" in summary:
         sl = summary["slam"]
         unplaced = sl["unplaced_frames"]

@@ -596,7 +596,9 @@ def write_map_config(folder: str | Path, config: dict) -> None:
 # b"PVC1", shard i64, end offset i64, CRC-32 of the first 20 bytes u32): what a map holds is
 # the effect of the records up to the last valid entry; anything after it (a killed run's last frames, a
 # torn record) is cut off when the log is opened. A finished save leaves the journal one entry long, so
-# the folder's bytes do not depend on how often the run checkpointed.
+# the folder's bytes do not depend on how often the run checkpointed (unless a checkpoint compacted the
+# log). Compaction (:meth:`panovocc_cli.mapping.rpu.DeltaStore.commit`) appends a closed shard's live
+# records again, commits, then deletes the shard: shard numbers may start above 0 and have gaps.
 
 import os
 import struct

@@ -724,6 +724,11 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     finally:
         mapper.close()  # re-raises a failed delta write
     record_export(out, mapper)  # prediction.npz is this commit's memory's export: a later revise can relabel a part
+    done = mapper._rpu.store.compactions  # a run that revises (--poses slam) compacts its log as it goes
+    if done:
+        summary["compactions"] = {"count": len(done), "shards": sum(c[0] for c in done),
+                                  "freed_bytes": sum(c[1] for c in done), "copied_bytes": sum(c[2] for c in done),
+                                  "log_bytes": sum(size for size, _ in mapper._rpu.store.live_bytes().values())}
     if observer is not None:
         observer.finish(mapper, summary)
     return summary

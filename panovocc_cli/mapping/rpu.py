@@ -23,6 +23,14 @@ frame's record, the snapshot's SHA-256), then commits; :meth:`ReversibleMemory.l
 snapshot that matches and is committed, replaying the committed records after it, or else rebuilds the
 memory from the whole log (a run killed before its end, a save that failed half-way). A delta that cannot be written (disk full, read-only folder) is
 taken out of the memory again, so the memory and the store agree, and the run stops with one line.
+
+Compaction. A revision appends its frame's new record and leaves the earlier one dead in its shard; a run
+that revises as it goes (``map --poses slam``) would otherwise keep every pose a frame ever had. Once the
+dead bytes of the closed shards pass half the live ones (and one shard), a commit first appends the live
+records of each closed shard that is at most half live again (their payloads as they are), then commits,
+deletes ``deltas/snapshot.npz`` (a checkpoint's; a save writes a new one) and then those shards. Each step
+leaves a folder that opens to the same memory: before the commit the copies are an uncommitted tail; after
+it, a copy replayed after its original subtracts it and adds the same delta.
 Maps made before the log (one ``deltas/NNNNNN.npz`` file a frame) are read as they are.
 """
 

@@ -54,6 +54,15 @@ def _log_bytes(folder):
     return sum(mapstore.shard_path(folder, s).stat().st_size for s in mapstore.shard_ids(folder))
 
 
+def _saved_map(cfg, frames, folder):
+    """A mapper keeping its deltas in ``folder``: the five frames integrated and saved."""
+    m = Mapper(cfg.mapper_config(), folder=folder, frame_source=frames)
+    for i in range(N):
+        m.integrate(frames(i))
+    m.save()
+    return m
+
+
 def _records(m):
     """Each kept frame's record payload, by frame id."""
     return {i: m._rpu.store.payload(i) for i in m.frame_ids}
@@ -68,10 +77,7 @@ def test_checkpoints_compact_the_log_and_the_map_equals_the_direct_one(room, tmp
     monkeypatch.setattr(mapstore, "SHARD_BYTES", 350_000)
     rng = np.random.default_rng(4)
     true = [frames(i).T_world_cam for i in range(N)]
-    m = Mapper(cfg.mapper_config(), folder=tmp_path / "f", frame_source=frames)
-    for i in range(N):
-        m.integrate(frames(i))
-    m.save()
+    m = _saved_map(cfg, frames, tmp_path / "f")
     worst = 0.0
     for r, i in enumerate(PLAN):  # frame 0 is never revised: its record shares a shard with dead ones
         m.revise(i, true[i] if r >= len(PLAN) - N + 1 else _jittered(true[i], rng))
@@ -111,10 +117,7 @@ def test_a_compaction_that_cannot_write_leaves_the_map_as_it_was(room, tmp_path,
     the folder reopens to the memory of its last commit."""
     _, _, cfg, frames = room
     monkeypatch.setattr(mapstore, "SHARD_BYTES", 700_000)  # the first shard: the five frames' first records
-    m = Mapper(cfg.mapper_config(), folder=tmp_path / "f", frame_source=frames)
-    for i in range(N):
-        m.integrate(frames(i))
-    m.save()
+    m = _saved_map(cfg, frames, tmp_path / "f")
     rng = np.random.default_rng(1)
     true = [frames(i).T_world_cam for i in range(N)]
     for r in range(15):  # frames 0 and 1 stay: two live records to copy out of the first shard
@@ -193,10 +196,7 @@ def test_a_removal_stays_removed_when_its_drop_record_is_compacted(room, tmp_pat
     its DROP is compacted, the DROP is written again, and the reopened map does not bring frame 1 back."""
     _, _, cfg, frames = room
     monkeypatch.setattr(mapstore, "SHARD_BYTES", 700_000)  # the first shard: the five frames' first records
-    m = Mapper(cfg.mapper_config(), folder=tmp_path / "f", frame_source=frames)
-    for i in range(N):
-        m.integrate(frames(i))
-    m.save()
+    m = _saved_map(cfg, frames, tmp_path / "f")
     rng = np.random.default_rng(3)
     T4 = frames(4).T_world_cam
     m.revise(4, _jittered(T4, rng))
