@@ -13,7 +13,7 @@ from panovocc_cli.io.poses import read_poses, read_trajectory, write_tum
 from panovocc_cli.io.sequence import Sequence
 
 
-def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_path, capsys):
+def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_path, capsys, monkeypatch):
     from panovocc_cli.mapping import Mapper
     from panovocc_cli.mapping.config import MapConfig
     from panovocc_cli.mapping.pipeline import load_config, sequence_frames
@@ -67,6 +67,26 @@ def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_pat
     k2, c2 = ref.memory.nonzero()
     assert np.array_equal(k1, k2)
     assert set(c1) == set(c2) and all(np.array_equal(c1[n], c2[n]) for n in c1)
+
+    # the same run with small shards and a checkpoint every 4 frames: its checkpoints compact the log
+    # (docs/mapping.md "Compaction of the delta log"), the memory and each frame's record are the same
+    import dataclasses
+
+    from panovocc_cli.io import mapstore
+
+    small = tmp_path / "small"
+    logged = sum(mapstore.shard_path(out, s).stat().st_size for s in mapstore.shard_ids(out))  # ~2x its live records
+    monkeypatch.setattr(mapstore, "SHARD_BYTES", logged // 16)
+    s = run_map_slam(dataclasses.replace(MapConfig(seq=str(seq_dir), out=str(small)), checkpoint_every=4),
+                     progress=False, params=params)
+    c = s["compactions"]
+    assert c["count"] >= 1 and c["freed_bytes"] > c["copied_bytes"] > 0
+    assert (small / "memory.npz").read_bytes() == (out / "memory.npz").read_bytes()
+    a, b = Mapper.load(small), Mapper.load(out)
+    assert a.frame_ids == b.frame_ids and all(a._rpu.store.payload(i) == b._rpu.store.payload(i) for i in a.frame_ids)
+    a.close()
+    b.close()
+    assert c["log_bytes"] < logged
 
 
 def test_poses_file_matched_and_aligned_to_a_reference(loop_seq, tmp_path):
