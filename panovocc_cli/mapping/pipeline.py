@@ -355,6 +355,11 @@ def resolve_origin(cfg: MapConfig, poses: np.ndarray) -> MapConfig:
     return dataclasses.replace(cfg, origin=[float(x) for x in o * h])
 
 
+REVISIONS_PER_CHECKPOINT = 1000
+"""A pose source's revisions after one frame (``--poses slam``: a loop closure's, or the final refinement's of
+every frame) are committed this many at a time, so a checkpoint can compact the delta log during a long pass
+(docs/mapping.md, "Compaction of the delta log"); ``--checkpoint-every 0`` commits only at the end."""
+
 _OUTPUTS = (CONFIG_NAME, MEMORY_NAME, "poses.txt", "prediction.npz", "map.ply", "trajectory.tum", "slam.json")
 
 
@@ -648,6 +653,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             if online is not None:
                 tc = time.perf_counter()
                 T, revisions = online(i, frame)
+                revisions = list(revisions)
                 t_track += time.perf_counter() - tc
                 if T is None:  # not placed: an empty observation where the last placed frame was
                     unplaced.append(i)
@@ -658,7 +664,10 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
             mapper.integrate(frame, observation)
             if schedule is not None:
                 corrected += schedule.apply(mapper, frames, i)
-            mapper.revise_many((fid, T, None) for fid, T in revisions)  # a loop closure's frames, pipelined
+            for k in range(0, len(revisions), REVISIONS_PER_CHECKPOINT):  # a loop closure's frames, pipelined
+                if k and cfg.checkpoint_every:  # a long pass (the final refinement, every frame): its log compacts
+                    mapper.checkpoint(background=True)
+                mapper.revise_many((fid, T, None) for fid, T in revisions[k:k + REVISIONS_PER_CHECKPOINT])
             t_frame = time.perf_counter() - tc
             t_compute += t_frame
             if observer is not None:

@@ -68,15 +68,17 @@ def test_map_with_slam_poses_equals_a_map_from_the_final_poses(loop_seq, tmp_pat
     assert np.array_equal(k1, k2)
     assert set(c1) == set(c2) and all(np.array_equal(c1[n], c2[n]) for n in c1)
 
-    # the same run with small shards and a checkpoint every 4 frames: its checkpoints compact the log
+    # the same run with small shards, a checkpoint every 4 frames and every 8 revisions: they compact the log
     # (docs/mapping.md "Compaction of the delta log"), the memory and each frame's record are the same
     import dataclasses
 
     from panovocc_cli.io import mapstore
+    from panovocc_cli.mapping import pipeline
 
     small = tmp_path / "small"
     logged = sum(mapstore.shard_path(out, s).stat().st_size for s in mapstore.shard_ids(out))  # ~2x its live records
     monkeypatch.setattr(mapstore, "SHARD_BYTES", logged // 16)
+    monkeypatch.setattr(pipeline, "REVISIONS_PER_CHECKPOINT", 8)  # the final refinement's pass, committed in parts
     s = run_map_slam(dataclasses.replace(MapConfig(seq=str(seq_dir), out=str(small)), checkpoint_every=4),
                      progress=False, params=params)
     c = s["compactions"]
