@@ -30,7 +30,7 @@ COMMAND_MODULES = ("data_cmds", "views_cmds", "map_cmds", "eval_cmds", "holo_cmd
 COMMAND_HOMES = {
     "synth": ("data_cmds",), "render": ("data_cmds",), "gt": ("data_cmds",), "views": ("views_cmds",),
     "map": ("map_cmds",), "revise": ("map_cmds",), "segeval": ("map_cmds",), "bench": ("map_cmds",),
-    "merge": ("map_cmds",),
+    "merge": ("map_cmds",), "compact": ("map_cmds",),
     "eval": ("eval_cmds",), "coverage": ("eval_cmds",), "show": ("eval_cmds",), "convert": ("eval_cmds", "holo_cmds", "import_cmds"),
     "traj": ("traj_cmds",), "demo": ("demo_cmds",), "baselines": ("baselines_cmds",),
     "reproduce": ("reproduce_cmds",), "query": ("query_cmds",), "relabel": ("query_cmds",), "view": ("viz_cmds",),

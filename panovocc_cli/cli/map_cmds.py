@@ -194,7 +194,7 @@ def revise(o: OptionValues) -> None:
 
 
 @app.command("compact")
-def compact_cmd(out: Path = typer.Argument(..., help="A map folder (map, revise or merge output).")) -> None:
+def compact_cmd(out: Path = typer.Argument(..., metavar="OUT", help="A map folder (map, revise or merge output).")) -> None:
     """Drop the delta records no frame keeps any more (a revised frame's earlier poses, removed frames) from
     OUT/deltas: the map, its exports and the kept records do not change. Checkpoints and saves do this on
     their own once the dead records pass half the live ones; this does it now, for every shard."""

@@ -30,7 +30,7 @@ def _imported_modules(*args: str) -> set[str]:
 
 
 @pytest.mark.parametrize("args", [("--help",), ("map", "--help"), ("gt", "--help"), ("render", "--help"),
-                                  ("segeval", "--help"), ("revise", "--help"),
+                                  ("segeval", "--help"), ("revise", "--help"), ("compact", "--help"),
                                   ("views", "--help"), ("convert", "holo360d", "--help"), ("view", "--help"),
                                   ("convert", "rosbag", "--help"), ("convert", "s2d3ds", "--help"),
                                   ("convert", "s2d3ds-gt", "--help")])
