@@ -913,6 +913,8 @@ class DeltaLog:
     def roll(self) -> None:
         """Close the current shard: the next record starts a new one (a compaction that rewrites every shard)."""
         if self.end:
+            if self._f is not None:
+                os.fsync(self._f.fileno())
             self.close()
             self.shard, self.end = self.shard + 1, 0
 
@@ -951,6 +953,7 @@ class DeltaLog:
 
     def _open_next(self) -> None:
         if self._f is not None and self.end >= SHARD_BYTES:
+            os.fsync(self._f.fileno())  # the next commit fsyncs only the shard it ends in
             self._f.close()
             self._f, self.shard, self.end = None, self.shard + 1, 0
         if self._f is None:
