@@ -835,8 +835,9 @@ class DeltaLog:
                 f.truncate(valid * _ENTRY.size)
         return best
 
-    def _scan(self, start: tuple[int, int], stop: tuple[int, int]) -> list:
-        """Records from ``start`` to ``stop`` (each checked: a damaged one is refused)."""
+    def _scan(self, start: tuple[int, int], stop: tuple[int, int], payloads: bool = True) -> list:
+        """Records from ``start`` to ``stop`` (each checked: a damaged one is refused; ``payloads=False``: their
+        headers only, the payloads' CRCs checked when they are read)."""
         out = []
         for s in [s for s in shard_ids(self.folder) if start[0] <= s <= stop[0]]:
             path = shard_path(self.folder, s)
@@ -850,7 +851,7 @@ class DeltaLog:
                     if ok:
                         magic, kind, fid, length, crc = _HEADER.unpack(head)
                         ok = magic == RECORD_MAGIC and kind in (PUT, DROP) and pos + _HEADER.size + length <= limit
-                    if ok:
+                    if ok and payloads:
                         payload = f.read(length)
                         ok = zlib.crc32(payload) == crc
                     if not ok:
@@ -893,23 +894,10 @@ class DeltaLog:
         return out
 
     def headers(self, shard: int) -> list[tuple[int, int, tuple[int, int, int]]]:
-        """A committed shard's records as (kind, frame id, location), from their headers alone (their payloads
-        are checked when read)."""
-        path = shard_path(self.folder, shard)
-        limit = self.end if shard == self.shard else path.stat().st_size
-        out, pos = [], 0
-        with open(path, "rb") as f:
-            while pos < limit:
-                f.seek(pos)
-                head = f.read(_HEADER.size)
-                if len(head) < _HEADER.size or _HEADER.unpack(head)[0] != RECORD_MAGIC:
-                    raise PanovoccError(f"delta record at byte {pos} is damaged (the map folder was changed)", path)
-                _, kind, fid, length, _ = _HEADER.unpack(head)
-                out.append((kind, fid, (shard, pos + _HEADER.size, length)))
-                pos += _HEADER.size + length
-        return out
+        """A shard's records up to the log's end as (kind, frame id, location), from their headers alone."""
+        limit = self.end if shard == self.shard else shard_path(self.folder, shard).stat().st_size
+        return self._scan((shard, 0), (shard, limit), payloads=False)
 
-    # -- writing ---------------------------------------------------------------------------------
     def roll(self) -> None:
         """Close the current shard: the next record starts a new one (a compaction that rewrites every shard)."""
         if self.end:
@@ -981,9 +969,7 @@ class DeltaLog:
 
     def rollback(self) -> None:
         """Cut what was appended since the last commit (a command that failed changes nothing)."""
-        self.close()
-        self._cut(*self.committed)
-        self.shard, self.end = self.committed
+        self.cut_to(self.committed)
 
     def close(self) -> None:
         if self._f is not None:

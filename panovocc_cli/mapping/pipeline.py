@@ -737,7 +737,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
     if done:
         summary["compactions"] = {"count": len(done), "shards": sum(c[0] for c in done),
                                   "freed_bytes": sum(c[1] for c in done), "copied_bytes": sum(c[2] for c in done),
-                                  "log_bytes": sum(size for size, _ in mapper._rpu.store.live_bytes().values())}
+                                  "log_bytes": mapper._rpu.store.log_bytes()}
     if observer is not None:
         observer.finish(mapper, summary)
     return summary

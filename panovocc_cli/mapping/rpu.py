@@ -320,6 +320,10 @@ class DeltaStore:
                 self._writer = None
 
     # -- persistence -----------------------------------------------------------------------------
+    def log_bytes(self) -> int:
+        """Bytes of the folder's delta log (its shard files, live records and dead ones)."""
+        return sum(self._log.shard_sizes().values())
+
     def live_bytes(self) -> dict[int, tuple[int, int]]:
         """Each shard of the log as (its bytes, the bytes of its live records), by shard number. A record is
         live while it is its frame's kept delta: a revision or a removal leaves the frame's earlier one dead."""
@@ -383,9 +387,10 @@ class DeltaStore:
         self.flush()
         victims = []
         if compact and self.folder is not None and self._log is not None:
-            size, live = self.live_bytes().get(self._log.shard, (0, 0))
-            if compact == EVERY and live < size:
-                self._log.roll()  # the current shard holds a dead record: rewritten too
+            if compact == EVERY:
+                size, live = self.live_bytes().get(self._log.shard, (0, 0))
+                if live < size:
+                    self._log.roll()  # the current shard holds a dead record: rewritten too
             victims = self.compaction_victims(every=compact == EVERY)
             if victims:
                 freed = sum(self._log.shard_sizes()[s] for s in victims)
@@ -607,7 +612,7 @@ class ReversibleMemory:
         else:
             sha = self.loaded_snapshot
             store.commit(before=lambda: _write_snapshot_index(store, sha), compact=EVERY)
-        return before, sum(store._log.shard_sizes().values())
+        return before, store.log_bytes()
 
     def rollback(self) -> None:
         """After a failed command: cut the uncommitted records (the memory object is not usable after)."""
