@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from .atomic import write_text
-from .npz import StreamedArray, write_npz
+from .npz import StreamedArray, load_npz, write_npz
 from .record_kernels import (factor_rows, from_planes, key_gaps, keys_from_gaps, nonzero_rows, scatter_rows,
                              to_planes)
 from .sequence import frame_stem
@@ -34,7 +34,7 @@ STAGED_SUFFIX = ".new"  # a revised delta waiting for the memory file that commi
 DELTA_COMPRESSLEVEL = 1  # zlib level of per-frame delta files (write_delta; docs/mapping.md, "Delta store size")
 RECORD_ZSTD_LEVEL = 3  # Zstandard level of the delta log's records (encode_arrays; "Delta store size")
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # a Zstandard frame's first bytes; a zlib stream's first byte is 0x78
-MEMORY_COMPRESSLEVEL = 1  # zlib level of memory.npz (channels stored as for deltas: compact, sparse rows)
+# memory.npz: channels stored as for deltas (compact, sparse rows), deflated by ISA-L (io.npz.write_npz ``fast``)
 
 
 class SparseRows(NamedTuple):
@@ -534,7 +534,7 @@ def write_memory(folder: str | Path, arrays, frames_done: int, poses: np.ndarray
     out["poses"] = np.asarray(poses, np.float64).reshape(-1, 4, 4)
     if frame_ids is not None:
         out["frame_ids"] = np.asarray(frame_ids, np.int64)
-    write_npz(Path(folder) / MEMORY_NAME, out, compresslevel=MEMORY_COMPRESSLEVEL, threaded=True)
+    write_npz(Path(folder) / MEMORY_NAME, out, threaded=True, fast=True)
 
 
 def read_memory(folder: str | Path, sparse: bool = False) -> tuple[dict, int, np.ndarray, np.ndarray | None]:
@@ -545,7 +545,7 @@ def read_memory(folder: str | Path, sparse: bool = False) -> tuple[dict, int, np
         raise PanovoccError("memory.npz not found (not a panovocc map folder, or the run stopped before "
                             "its first checkpoint)", path)
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with load_npz(path) as z:
             arrays = {k: z[k] for k in z.files if not k.startswith(("ch_", "rows_", "nz_", "nzshape_", "fac", "gcd_"))}
             keys = np.asarray(arrays["keys"], np.int64)
             if int(arrays.pop("keys_are_diffs", 0)):  # older memory files store the keys themselves

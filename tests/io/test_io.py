@@ -349,6 +349,56 @@ def test_npz_written_on_a_second_thread_has_the_same_bytes(tmp_path, monkeypatch
         assert z["f"].flags.f_contiguous and list(z["names"]) == ["A", "E", "normal_sum"]
 
 
+def test_a_fast_npz_is_deflated_by_isal_to_bytes_that_depend_on_the_content_only(tmp_path, monkeypatch):
+    """``write_npz(fast=True)`` (memory.npz): entries deflated by ISA-L (a zip np.load and zipfile read, with
+    valid CRCs), smaller than zlib level 1's on compressible data; the same bytes serial or threaded and
+    whatever pieces a streamed entry comes in (ISA-L's output depends on its input's calls: io.npz._FixedFeed),
+    which fails when igzip is fed the pieces as given; ``load_npz`` reads fast and zlib archives alike."""
+    import zipfile
+
+    from isal import isal_zlib
+
+    from panovocc_cli.io import npz
+
+    rng = np.random.default_rng(5)
+    arrays = _npz_arrays(rng)
+    # a memory channel's kind of data: mostly zeros (igzip's bytes depend on its calls on such data)
+    ramp = arrays["ramp"] = np.where(rng.random(3_000_000) < 0.05, rng.integers(1, 1000, 3_000_000), 0)
+    monkeypatch.setattr(npz, "FAST_FEED", 1 << 16)  # many calls a test-sized entry
+
+    def with_pieces(step):
+        return {**arrays, "streamed": npz.StreamedArray(np.int64, ramp.shape, lambda: (
+            ramp[a:a + step] for a in range(0, len(ramp), step)))}
+
+    arrays = with_pieces(len(ramp))  # one piece
+    npz.write_npz(tmp_path / "fast.npz", arrays, fast=True)
+    npz.write_npz(tmp_path / "threaded.npz", with_pieces(12_345), fast=True, threaded=True)
+    npz.write_npz(tmp_path / "pieces.npz", with_pieces(999_999), fast=True)
+    npz.write_npz(tmp_path / "zlib.npz", arrays, compresslevel=1)
+    fast = (tmp_path / "fast.npz").read_bytes()
+    assert (tmp_path / "threaded.npz").read_bytes() == fast and (tmp_path / "pieces.npz").read_bytes() == fast
+    assert fast != (tmp_path / "zlib.npz").read_bytes()
+    with zipfile.ZipFile(tmp_path / "fast.npz") as zf:
+        assert zf.testzip() is None and all(i.compress_type == zipfile.ZIP_DEFLATED for i in zf.infolist())
+        fast_ramp = zf.getinfo("ramp.npy").compress_size
+    with zipfile.ZipFile(tmp_path / "zlib.npz") as zf:
+        assert fast_ramp < zf.getinfo("ramp.npy").compress_size
+    for name in ("fast.npz", "zlib.npz"):
+        with np.load(tmp_path / name, allow_pickle=False) as z, npz.load_npz(tmp_path / name) as y:
+            for k in arrays:
+                want = ramp if k == "streamed" else (np.stack([np.full(1000, b, np.uint8) for b in range(5)])
+                                                     if k == "planes" else arrays[k])
+                np.testing.assert_array_equal(z[k], want)
+                np.testing.assert_array_equal(y[k], want)
+    # the same entries handed to igzip as they come: other bytes for other pieces
+    real = npz._FixedFeed
+    monkeypatch.setattr(npz, "_FixedFeed", lambda inner: inner)
+    npz.write_npz(tmp_path / "raw1.npz", with_pieces(12_345), fast=True)
+    npz.write_npz(tmp_path / "raw2.npz", with_pieces(999_999), fast=True)
+    assert (tmp_path / "raw1.npz").read_bytes() != (tmp_path / "raw2.npz").read_bytes()
+    assert real is not None and isal_zlib.DEFLATED == zipfile.ZIP_DEFLATED
+
+
 def test_a_threaded_npz_write_that_fails_leaves_nothing(tmp_path, monkeypatch):
     """A failure while an entry is produced (the caller's thread) or written (the writer thread: disk full)
     is raised (an OSError as io.atomic's one line), the writer thread stops, and no file is left."""
