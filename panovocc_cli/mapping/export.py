@@ -38,6 +38,7 @@ from ..geometry.lattice import KEY_RANGE, index_to_center, pack_keys, unpack_ind
 from ..grid import EMPTY, OCCUPIED_UNKNOWN_CLASS, UNKNOWN, Grid
 from ..semantics.gsc import BLOCK, block_halo, consolidate_blocks, unaries
 from .contributors import NORMAL_STEPS, S_SCALE
+from .memory import BLOCK as MEMORY_BLOCK
 from .memory import FIXED_SCALE, GEOMETRY_NAMES, OFFSET_CHANNEL
 from .params import RULES, OccupancyParams
 from .psvf.update import NORMAL_UNIT, OFFSET_STEPS
@@ -476,7 +477,7 @@ def gsc_inputs(channels, g: np.ndarray, rows: np.ndarray) -> tuple:
 
 def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, params, *, block: int | None = None,
                    previous: np.ndarray | None = None, changed_keys: np.ndarray | None = None,
-                   progress=None) -> np.ndarray:
+                   changed_blocks: np.ndarray | None = None, progress=None) -> np.ndarray:
     """Vocabulary index of each occupied voxel, or -1 (no class; exported as 254).
 
     Labelled a cube of ``block`` voxels a side at a time (:func:`~panovocc_cli.semantics.gsc.
@@ -492,10 +493,12 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     g : (n,) float64, the mapper's signed score (per-frame support units, ~0..1 on surfaces)
     params : object with ``use_gsc`` and ``gsc`` (``MapperConfig`` or ``SemanticParams``)
     previous : (n,) int64, optional, the labels of an export of the same memory before the voxels
-        ``changed_keys`` changed (any channel; a voxel that became or stopped being occupied is one):
-        only the cubes whose halo holds a changed key are labelled again, the others keep ``previous``
-        (:func:`incremental_labels`); the result equals a full labelling bit for bit
-    changed_keys : (k,) int64 voxel keys, with ``previous``
+        ``changed_keys`` and those of ``changed_blocks`` changed (any channel; a voxel that became or stopped
+        being occupied is one): only the voxels within the GSC's reach of a changed one are labelled again,
+        from those within twice its reach (:func:`relabel_region`), the others keep ``previous``; the
+        result equals a full labelling bit for bit
+    changed_keys : (k,) int64 voxel keys; changed_blocks : (m, 3) int64 memory block indices (voxel index //
+        :data:`~.memory.BLOCK`), every voxel of which may have changed; either or both, with ``previous``
     progress : callable ``(voxels done)``, optional
 
     Returns
@@ -504,37 +507,76 @@ def label_occupied(occupied_keys: np.ndarray, channels: dict, g: np.ndarray, par
     """
     n = len(occupied_keys)
     block = BLOCK if block is None else int(block)
-    if (previous is None) != (changed_keys is None):
-        raise PanovoccError("label_occupied: previous and changed_keys go together")
+    if (previous is None) != (changed_keys is None and changed_blocks is None):
+        raise PanovoccError("label_occupied: previous and the changed voxels (changed_keys, changed_blocks) go together")
     if n == 0:
         return np.zeros(0, np.int64)
     if not isinstance(channels, OccupiedChannels):  # a dict of the occupied rows
         channels = OccupiedChannels(channels, np.arange(n))
-    redo = labels = None
+    region = labels = None
     if previous is not None:
         labels = np.array(previous, np.int64)
         if labels.shape != (n,):
             raise PanovoccError(f"previous labels {labels.shape} must be ({n},)")
-        redo = _touches(np.asarray(changed_keys, np.int64), block, block_halo(params.use_gsc, params.gsc))
+        region = relabel_region(np.asarray(occupied_keys, np.int64), changed_keys, changed_blocks,
+                                block_halo(params.use_gsc, params.gsc))
     return consolidate_blocks(np.asarray(occupied_keys, np.int64), lambda rows: gsc_inputs(channels, g, rows),
-                              use_gsc=params.use_gsc, params=params.gsc, block=block, labels=labels, redo=redo,
+                              use_gsc=params.use_gsc, params=params.gsc, block=block, labels=labels, region=region,
                               progress=progress)
 
 
-def _touches(changed_keys: np.ndarray, block: int, halo: int):
-    """``redo(cube, keys)`` of :func:`~panovocc_cli.semantics.gsc.consolidate_blocks`: True when a changed key
-    lies in the cube or within ``halo`` voxels of it (changed voxels need not be occupied now: one that
-    stopped being occupied changed its neighbours' graph)."""
-    ck = np.unique(changed_keys)
-    cidx = unpack_keys(ck)
+def _dilated_blocks(blocks: np.ndarray, r: int) -> np.ndarray:
+    """Packed keys (sorted, unique) of the blocks within Chebyshev distance ``r`` of ``blocks`` ((m, 3) int64
+    block indices): one axis at a time."""
+    b = np.unique(pack_keys(blocks)) if len(blocks) else np.zeros(0, np.int64)
+    for axis in range(3):
+        if not len(b) or r <= 0:
+            break
+        idx = unpack_keys(b)
+        grown = np.repeat(idx[:, None, :], 2 * r + 1, axis=1)
+        grown[:, :, axis] += np.arange(-r, r + 1)
+        b = np.unique(pack_keys(grown.reshape(-1, 3)))
+    return b
 
-    def redo(cube, _keys) -> bool:
-        lo, hi = cube * block - halo, (cube + 1) * block + halo  # the box [lo, hi)
-        first, last = (pack_keys(np.clip(v, 1 - KEY_RANGE, KEY_RANGE - 1)[None])[0] for v in (lo, hi - 1))
-        c = cidx[np.searchsorted(ck, first, "left"):np.searchsorted(ck, last, "right")]  # the box's keys and more
-        return bool(np.any(np.all((c >= lo) & (c < hi), axis=1)))
 
-    return redo
+def relabel_region(keys: np.ndarray, changed_keys, changed_blocks, halo: int) -> np.ndarray:
+    """Which occupied voxels an incremental export labels again (2) or only reads (1), and which it keeps (0).
+
+    A voxel's label depends on nothing farther than ``halo`` voxels along each axis
+    (:func:`~panovocc_cli.semantics.gsc.block_halo`), so only voxels within ``halo`` of a changed voxel (one
+    whose channels or occupancy changed) can change label, and labelling them needs the voxels within
+    ``halo`` of those. Both sets are taken whole blocks of :data:`~.memory.BLOCK` voxels at a time around
+    the changed voxels' blocks (a superset, so exact): the blocks within ``(halo + 7) // 8`` of a changed
+    block are labelled again, those within twice that are read. Cost: the GSC over the changed surfaces'
+    neighbourhoods, not over every cube that one reaches.
+
+    Parameters
+    ----------
+    keys : (n,) int64 the occupied voxels' keys
+    changed_keys : (k,) int64 voxel keys or None; changed_blocks : (m, 3) int64 block indices or None
+    halo : int, voxels
+
+    Returns
+    -------
+    (n,) uint8 in 0..2
+    """
+    parts = [np.zeros((0, 3), np.int64)]
+    if changed_keys is not None and len(changed_keys):
+        parts.append(unpack_keys(np.unique(np.asarray(changed_keys, np.int64))) // MEMORY_BLOCK)
+    if changed_blocks is not None:
+        parts.append(np.asarray(changed_blocks, np.int64).reshape(-1, 3))
+    blocks = np.concatenate(parts)
+    r1 = (int(halo) + MEMORY_BLOCK - 1) // MEMORY_BLOCK
+    r2 = 2 * r1
+    near, reach = _dilated_blocks(blocks, r1), _dilated_blocks(blocks, r2)
+    region = np.zeros(len(keys), np.uint8)
+    for sl in _slices(len(keys)):
+        kb = pack_keys(unpack_keys(keys[sl]) // MEMORY_BLOCK)
+        for b in (reach, near):  # near lies within reach: 2 near, 1 reach only
+            if len(b):
+                pos = np.minimum(np.searchsorted(b, kb), len(b) - 1)
+                region[sl] += (b[pos] == kb).astype(np.uint8)
+    return region
 
 
 def apply_labels(grid: Grid, occupied_keys: np.ndarray, labels: np.ndarray, vocab: Sequence[str], *,
@@ -562,8 +604,8 @@ def class_colors(labels: np.ndarray, vocab: Sequence[str]) -> np.ndarray:
 
 def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy: OccupancyParams,
                   vocab=(), semantic=None, origin_index=(0, 0, 0), *, previous: Grid | None = None,
-                  changed_keys: np.ndarray | None = None, pieces=None, reader=None, lookup=None,
-                  block: int | None = None) -> MapExport:
+                  changed_keys: np.ndarray | None = None, changed_blocks: np.ndarray | None = None, pieces=None,
+                  reader=None, lookup=None, block: int | None = None) -> MapExport:
     """The labelled grid of a memory's non-zero voxels.
 
     The occupied set comes from the geometry alone (:func:`memory_to_grid`); with a vocabulary and
@@ -580,9 +622,11 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     origin_index : (3,) int64, the lattice index the keys are relative to (the map's local origin); the
         grid is placed in the world by it
     previous : Grid, optional, this export's grid before the voxels ``changed_keys`` ((k,) int64, keys
-        relative to ``origin_index``) changed: an incremental export, which labels again only the cubes
-        whose halo holds a changed voxel (or an occupied voxel ``previous`` does not hold as occupied)
-        and takes the other labels from ``previous``; the same result, bit for bit, as without it
+        relative to ``origin_index``) and every voxel of the blocks ``changed_blocks`` ((m, 3) int64 memory
+        block indices, ``VoxelMemory.changed_blocks``) changed: an incremental export, which labels again only
+        the voxels within the GSC's reach of a changed voxel (or of an occupied voxel ``previous`` does not
+        hold as occupied; :func:`relabel_region`) and takes the other labels from ``previous``; the same
+        result, bit for bit, as without it
     pieces, reader : instead of ``keys`` and ``channels`` (None then): the non-zero voxels a slab at a
         time (:func:`_grid_of_pieces`, e.g. ``VoxelMemory.nonzero_slabs``) and ``reader(ids)``, the
         occupied voxels' channels (:class:`OccupiedChannels`) from their ids: an export that never holds
@@ -605,15 +649,25 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
     if len(vocab) and "E" in sub:
         before = changed = None
         if previous is not None and _same_classes(previous, voxel_size, vocab):
-            before = previous_labels(previous, occ_keys, oi)
-            if changed_keys is None:
+            if changed_keys is None and changed_blocks is None:
                 raise PanovoccError("an incremental export needs the changed voxels' keys with the previous grid")
-            changed = np.asarray(changed_keys, np.int64).reshape(-1)
-            if needs_neighbours(occupancy):  # the rules read face neighbours: theirs may have changed state too
-                changed = np.concatenate([changed] + [k[ok] for k, ok in (_neighbour_keys(changed, a, d)
-                                                                          for a, d in FACES)])
-            changed = np.concatenate([changed, occ_keys[before == UNKNOWN_CLASS]])
-        labels = label_occupied(occ_keys, sub, g, semantic, block=block, previous=before, changed_keys=changed)
+            before = previous_labels(previous, occ_keys, oi)
+            # A label depends on the occupied set and the occupied voxels' channels only: what changed for
+            # the labels is the voxels that started or stopped being occupied (read from the two exports, so
+            # a rule that reads face neighbours needs no margin) and the changed voxels and blocks that hold
+            # an occupied voxel now or before (a block only carved through changes no label).
+            was = _occupied_keys(previous, oi)
+            stopped = was[~_sorted_isin(was, occ_keys)]
+            changed = np.concatenate([np.zeros(0, np.int64) if changed_keys is None else
+                                      np.asarray(changed_keys, np.int64).reshape(-1),
+                                      occ_keys[before == UNKNOWN_CLASS], stopped])
+            if changed_blocks is not None:
+                held = np.unique(np.concatenate([_block_keys(occ_keys), _block_keys(was)]))
+                changed_blocks = np.asarray(changed_blocks, np.int64).reshape(-1, 3)
+                changed_blocks = changed_blocks[_sorted_isin(pack_keys(changed_blocks), held)]
+            del was, stopped
+        labels = label_occupied(occ_keys, sub, g, semantic, block=block, previous=before, changed_keys=changed,
+                                changed_blocks=changed_blocks if before is not None else None)
         grid = apply_labels(grid, occ_keys, labels, vocab, in_place=True)
     if np.any(oi != 0):  # the grid was built on the local keys: place it in the world
         grid = Grid(grid.labels, index_to_center(grid.index0 + oi, voxel_size), voxel_size, grid.class_names)
@@ -623,6 +677,30 @@ def export_memory(keys: np.ndarray, channels: dict, voxel_size: float, occupancy
 def _same_classes(grid: Grid, voxel_size: float, vocab) -> bool:
     """Whether ``grid`` can hold this export's labels: the same voxel size and class names."""
     return bool(np.isclose(grid.voxel_size, voxel_size)) and list(grid.class_names) == ["empty"] + list(vocab)
+
+
+def _occupied_keys(grid: Grid, origin_index) -> np.ndarray:
+    """Keys (m,) int64, sorted, relative to ``origin_index``, of the voxels a labelled grid holds as occupied."""
+    out = []
+    for i in range(0, grid.labels.shape[0], 64):  # a slab of the grid at a time
+        sl = grid.labels[i:i + 64]
+        idx = np.stack(np.nonzero((sl >= 1) & (sl <= OCCUPIED_UNKNOWN_CLASS)), axis=1).astype(np.int64)
+        out.append(pack_keys(idx + grid.index0 + [i, 0, 0] - np.asarray(origin_index, np.int64)))
+    return np.concatenate(out) if out else np.zeros(0, np.int64)
+
+
+def _sorted_isin(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.isin(a, b)`` for ``b`` sorted (int64)."""
+    if not len(b):
+        return np.zeros(len(a), bool)
+    pos = np.minimum(np.searchsorted(b, a), len(b) - 1)
+    return b[pos] == a
+
+
+def _block_keys(keys: np.ndarray) -> np.ndarray:
+    """Packed memory-block indices (voxel index // :data:`~.memory.BLOCK`) of voxel ``keys``, unique, sorted."""
+    return np.unique(np.concatenate([pack_keys(unpack_keys(keys[sl]) // MEMORY_BLOCK) for sl in _slices(len(keys))]
+                                    + [np.zeros(0, np.int64)]))
 
 
 def previous_labels(grid: Grid, occupied_keys: np.ndarray, origin_index) -> np.ndarray:

@@ -464,17 +464,18 @@ class Mapper:
     # -- outputs ---------------------------------------------------------------------------------
     @_locked
     def export(self, previous: Grid | None = None, changed_keys: np.ndarray | None = None, *,
-               block: int | None = None) -> MapExport:
+               changed_blocks: np.ndarray | None = None, block: int | None = None) -> MapExport:
         """The labelled grid and the occupied voxels (keys, labels, channels) of the current memory.
-        ``previous``: the grid of an export before the voxels ``changed_keys`` changed (an incremental
-        export, the same result: :func:`.export.export_memory`); ``block``: its GSC cube side (the same
-        labels; default :data:`~..semantics.gsc.BLOCK`)."""
+        ``previous``: the grid of an export before the voxels ``changed_keys`` and those of the memory blocks
+        ``changed_blocks`` changed (an incremental export, the same result: :func:`.export.export_memory`);
+        ``block``: its GSC cube side (the same labels; default :data:`~..semantics.gsc.BLOCK`)."""
         mem = self.memory  # read a slab of the key space at a time (never every non-zero voxel's key at once)
         pieces = (lambda: ((keys, NonzeroChannels(mem, loc), loc) for keys, loc in mem.nonzero_slabs()))
         reader = (lambda loc: OccupiedChannels(NonzeroChannels(mem, loc), np.arange(len(loc))))
         return export_memory(None, None, self.config.geometry.voxel_size, self.config.occupancy, self.config.vocab,
                              self.config, origin_index=self.config.origin_index(), previous=previous,
-                             changed_keys=changed_keys, pieces=pieces, reader=reader, block=block,
+                             changed_keys=changed_keys, changed_blocks=changed_blocks, pieces=pieces,
+                             reader=reader, block=block,
                              lookup=lambda keys, names=GEOMETRY_NAMES: mem.gather(keys, names))  # face neighbours
 
     def prediction(self) -> Grid:

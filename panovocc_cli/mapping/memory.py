@@ -39,7 +39,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import PanovoccError
-from ..geometry.lattice import KEY_RANGE, pack_index, unpack_index
+from ..geometry.lattice import pack_index, unpack_index
 
 FIXED_SCALE = 2 ** 16  # fixed-point scale of "fixed" channels: value = stored / FIXED_SCALE
 BLOCK = 8  # voxels per block edge
@@ -827,26 +827,18 @@ class VoxelMemory:
             raise
 
     def track_changes(self) -> None:
-        """From now on, remember which blocks an add (or :meth:`replace`) reaches: :meth:`changed_corners`."""
+        """From now on, remember which blocks an add (or :meth:`replace`) reaches: :meth:`changed_blocks`."""
         self._marks = np.zeros(len(self._block_keys), np.uint8)
 
-    def changed_corners(self, margin: int = 1) -> np.ndarray:
-        """Voxel keys (m,) int64, sorted: the 8 corners of each block that an add reached since
-        :meth:`track_changes`, the block grown by ``margin`` voxels on every side (clipped to the key range).
-
-        A conservative stand-in for the changed voxels (:func:`.export.export_memory`'s incremental labels,
-        ``panovocc revise``): an axis-aligned box at least ``8 + 2 * margin`` voxels wide on every axis that
-        holds a changed voxel, or a voxel within ``margin`` of one, holds one of these corners (along each
-        axis the grown block's interval meets the box's and is not wider, so one of its two ends lies in it).
-        Costs one byte a block slot while tracked, instead of every changed voxel's key."""
+    def changed_blocks(self) -> np.ndarray:
+        """Block indices (m, 3) int64 (a block is :data:`BLOCK` voxels a side; voxel index // BLOCK), sorted by
+        key: the blocks an add reached since :meth:`track_changes`. Every voxel whose channels changed lies
+        in one (:func:`.export.export_memory`'s incremental labels, ``panovocc revise``). Costs one byte a
+        block slot while tracked, instead of every changed voxel's key."""
         if self._marks is None:
-            raise PanovoccError("changed_corners needs track_changes() first")
+            raise PanovoccError("changed_blocks needs track_changes() first")
         slots = np.flatnonzero(self._marks[:self.n_blocks])
-        b = np.stack(unpack_index(self._block_keys[slots]), axis=1)  # (m, 3) block indices
-        ends = np.stack([b * BLOCK - margin, b * BLOCK + BLOCK - 1 + margin])  # (2, m, 3)
-        corners = np.stack([np.stack([ends[(c >> a) & 1, :, a] for a in range(3)], axis=1) for c in range(8)])
-        corners = np.clip(corners.reshape(-1, 3), 1 - KEY_RANGE, KEY_RANGE - 1)
-        return np.unique(pack_index(corners[:, 0], corners[:, 1], corners[:, 2]))
+        return np.stack(unpack_index(np.sort(self._block_keys[slots])), axis=1).astype(np.int64).reshape(-1, 3)
 
     def _add_group(self, group: str, keys, vals, cols, sign) -> int | None:
         """Scatter-add one group's columns; growing and widening as needed. Returns None when done, or the

@@ -836,9 +836,9 @@ def _run_revise(out: Path, poses_path, progress: bool) -> dict:
             # re-raises a failed write. The grid and PLY are written after the commit, as before.
             mapper.save(out, background=FROZEN)
             try:
-                if incremental:  # only the cubes whose halo holds a changed block; the same labels
-                    ex = mapper.export(read_grid(out / "prediction.npz"), mapper.memory.changed_corners(),
-                                       block=REVISE_GSC_BLOCK)
+                if incremental:  # only the voxels within the GSC's reach of a changed block; the same labels
+                    ex = mapper.export(read_grid(out / "prediction.npz"),
+                                       changed_blocks=mapper.memory.changed_blocks(), block=REVISE_GSC_BLOCK)
                 else:
                     ex = mapper.export(block=REVISE_GSC_BLOCK)
             finally:

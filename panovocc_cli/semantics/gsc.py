@@ -443,7 +443,7 @@ def _unique_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params: GSCParams = GSCParams(),
-                       block: int = BLOCK, labels: np.ndarray | None = None, redo=None,
+                       block: int = BLOCK, labels: np.ndarray | None = None, region: np.ndarray | None = None,
                        progress=None) -> np.ndarray:
     """:func:`consolidate` of a whole map a cube of the key space at a time, bit for bit the same labels.
 
@@ -460,10 +460,12 @@ def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params
         at the sorted positions ``rows`` (see :func:`unaries`)
     use_gsc, params : as :func:`consolidate`
     block : int, cube edge in voxels
-    labels : (n,) int64 to write into (and return), optional; with ``redo``, the labels of a previous
-        consolidation, kept for every cube not redone
-    redo : callable ``(cube lattice index (3,), keys of the cube and its halo) -> bool``, optional: which
-        cubes to consolidate again (an incremental export: those whose halo holds a changed voxel)
+    labels : (n,) int64 to write into (and return), optional; with ``region``, the labels of a previous
+        consolidation, kept where ``region`` is not 2
+    region : (n,) uint8, optional (an incremental export): 2 where a voxel is labelled again, 1 where it is
+        only read, 0 where it is neither. Exact when every voxel within :func:`block_halo` of a 2 is at
+        least 1: a cube's voxels to label again are consolidated with the 1s and 2s of the cube and its
+        halo alone, and a cube without a 2 is skipped
     progress : callable ``(voxels done)``, optional, called after each cube
 
     Returns
@@ -472,18 +474,27 @@ def consolidate_blocks(keys: np.ndarray, inputs, *, use_gsc: bool = True, params
     """
     n = len(keys)
     if labels is None:
-        if redo is not None:
-            raise PanovoccError("consolidate_blocks: redo needs the previous labels")
+        if region is not None:
+            raise PanovoccError("consolidate_blocks: region needs the previous labels")
         labels = np.empty(n, np.int64)
     elif labels.shape != (n,):
         raise PanovoccError(f"labels {labels.shape} must be ({n},)")
     halo = block_halo(use_gsc, params)
-    for cube, rows, inner in key_blocks(keys, block, halo):
-        if redo is None or redo(cube, keys[rows]):
+    if region is not None and np.shape(region) != (n,):
+        raise PanovoccError(f"region {np.shape(region)} must be ({n},)")
+    for _cube, rows, inner in key_blocks(keys, block, halo):
+        done, todo = int(inner.sum()), True  # the cube's own voxels (labelled now or kept)
+        if region is not None:
+            r = region[rows]
+            inner = inner & (r == 2)
+            todo = bool(inner.any())
+            if todo:
+                rows, inner = rows[r > 0], inner[r > 0]
+        if todo:
             p, S, g, normals, colors = inputs(rows)
             lab = consolidate(unpack_keys(keys[rows]), p, S, g, normals, colors, use_gsc=use_gsc, params=params)
             labels[rows[inner]] = lab[inner]
             del p, S, g, normals, colors, lab
         if progress is not None:
-            progress(int(inner.sum()))
+            progress(done)
     return labels

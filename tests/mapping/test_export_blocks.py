@@ -53,7 +53,7 @@ def _export(keys, ch, **kw):
 @pytest.mark.parametrize("block", [8, 64])
 def test_incremental_export_equals_a_full_one(monkeypatch, block):
     """Channels change at a few voxels (labels, evidence lost, a voxel that stops and one that starts being
-    occupied): the export given the previous grid and the changed keys labels only the cubes near them and
+    occupied): the export given the previous grid and the changed keys labels only the voxels near them and
     gives the full export's labels and grid bit for bit; with nothing changed it labels nothing again."""
     monkeypatch.setattr(export, "BLOCK", block)
     keys, ch = _memory()
@@ -77,9 +77,27 @@ def test_incremental_export_equals_a_full_one(monkeypatch, block):
     assert np.array_equal(inc.labels, full.labels) and np.array_equal(inc.grid.labels, full.grid.labels)
     assert np.array_equal(inc.grid.origin, full.grid.origin) and inc.grid.class_names == full.grid.class_names
     redone = sum(calls)
+    # voxels that stop or start being occupied are found from the two exports: unlisted (as a change by the
+    # face-neighbour rules leaves them), the same labels. A voxel v far from the changes above is the only
+    # evidence within the GSC's reach: its neighbours' labels come from it, and change when it stops or starts.
+    idx = unpack_keys(keys)
+    wall = (idx[:, 0] > 40) & (idx[:, 1] == 16) & (idx[:, 2] > 18)
+    v = np.flatnonzero(wall & np.isin(keys, before.occupied_keys) & (ch["S"][:, 0] > 0))[0]
+    patch = np.abs(idx - idx[v]).max(axis=1) <= 14
+    base = {k: c.copy() for k, c in ch.items()}
+    for k in ("E", "S"):
+        base[k][patch & (np.arange(len(keys)) != v)] = 0
+    off = {k: c.copy() for k, c in base.items()}
+    off["N"][v], off["A"][v], off["F"][v] = 0, 0, 5  # v not occupied
+    for a, b in ((base, off), (off, base)):  # v stops, v starts
+        was, now = _export(keys, a), _export(keys, b)
+        _, i, j = np.intersect1d(was.occupied_keys, now.occupied_keys, return_indices=True)
+        assert (was.labels[i] != now.labels[j]).sum() > 3  # v's neighbours' labels
+        got = _export(keys, b, previous=was.grid, changed_keys=keys[:0])
+        assert np.array_equal(got.labels, now.labels) and np.array_equal(got.grid.labels, now.grid.labels)
     calls.clear()
     _export(keys, ch2)
-    assert 0 < redone < sum(calls) / 2 if block == 8 else redone == sum(calls)  # 64: the map is one cube
+    assert 0 < redone < (sum(calls) / 2 if block == 8 else sum(calls))  # 64: one cube, less than all of it
     calls.clear()
     same = _export(keys, ch2, previous=full.grid, changed_keys=keys[:0])
     assert calls == [] and np.array_equal(same.grid.labels, full.grid.labels)
@@ -133,22 +151,33 @@ def test_point_cloud_in_slices_has_the_same_bytes(tmp_path, monkeypatch, color):
     assert len(list(point_chunks(ex, 0.05, color, VOCAB))) == -(-len(pts) // 777)
 
 
-def test_a_cube_is_labelled_again_exactly_when_its_halo_holds_a_changed_voxel():
-    """The incremental export's choice of cubes against its definition (a changed key in the cube grown by
-    the halo), changed keys anywhere, the lattice's edges included; the halo's own length is tested in
+@pytest.mark.parametrize("halo", [12, 22, 3, 0])
+def test_the_voxels_labelled_again_hold_every_voxel_a_change_can_reach(halo):
+    """``relabel_region`` against its definition, voxel by voxel, changed keys and changed blocks, the
+    lattice's edges included: every occupied voxel within ``halo`` of a changed voxel is labelled
+    again (2), every voxel within ``halo`` of one labelled again is read (>= 1), and voxels far from every
+    change are neither (the region is local). The halo's own length is tested in
     tests/semantics/test_gsc_blocks.py (one voxel less gives other labels)."""
     from panovocc_cli.geometry.lattice import KEY_RANGE
 
     assert KEY_RANGE == KEY_RANGE_EDGE
-    rng = np.random.default_rng(4)
-    changed = rng.integers(-30, 30, (40, 3))
-    changed[:2] = [[KEY_RANGE - 1, 0, 0], [0, 1 - KEY_RANGE, 5]]
-    redo = export._touches(pack_keys(changed), 8, 12)
-    for cube in np.stack(np.meshgrid(*[np.arange(-7, 7)] * 3, indexing="ij"), -1).reshape(-1, 3):
-        lo, hi = cube * 8 - 12, cube * 8 + 20
-        assert redo(cube, None) == bool(np.all((changed >= lo) & (changed < hi), axis=1).any())
-    edge = np.array([(KEY_RANGE - 1) // 8, 0, 0])
-    assert redo(edge, None) and not redo(edge - [4, 0, 0], None)
+    rng = np.random.default_rng(halo)
+    occ = np.unique(np.concatenate([rng.integers(-300, 300, (6000, 3)), rng.integers(KEY_RANGE - 60, KEY_RANGE, (800, 3)),
+                                    rng.integers(-KEY_RANGE + 1, -KEY_RANGE + 40, (800, 3))]), axis=0)
+    keys = pack_keys(occ)
+    changed = np.concatenate([rng.integers(-20, 20, (5, 3)), [[KEY_RANGE - 1, KEY_RANGE - 3, KEY_RANGE - 9]]])
+    blocks = np.array([[6, -5, 2], [(1 - KEY_RANGE) // 8, (1 - KEY_RANGE) // 8, (1 - KEY_RANGE) // 8]])
+    region = export.relabel_region(keys, pack_keys(changed), blocks, halo)
+    block_voxels = np.concatenate([b * 8 + np.stack(np.meshgrid(*[np.arange(8)] * 3, indexing="ij"), -1).reshape(-1, 3)
+                                   for b in blocks])
+    src = np.concatenate([changed, block_voxels])
+    dist = np.min(np.abs(occ[:, None, :] - src[None]).max(axis=2), axis=1)  # L-inf distance to a change
+    assert (region[dist <= halo] == 2).all()
+    relabel = occ[region == 2]
+    near_relabel = np.min(np.abs(occ[:, None, :] - relabel[None]).max(axis=2), axis=1) <= halo
+    assert (region[near_relabel] >= 1).all()
+    assert (region[dist > 2 * halo + 32] == 0).all() and (region == 0).sum() > len(occ) / 2
+    assert not export.relabel_region(keys, keys[:0], None, halo).any()
 
 
 def test_memory_slabs_concatenate_to_nonzero():

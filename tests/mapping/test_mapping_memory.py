@@ -467,33 +467,24 @@ def test_replace_reads_channels_as_views_of_any_layout():
     np.testing.assert_array_equal(matrix, np.concatenate([new.channels[c] for c in names], axis=1))
 
 
-def test_changed_corners_stand_for_every_changed_voxel_and_its_neighbours():
-    """After track_changes, every box at least a block + 2 voxels wide that holds a voxel an add reached
-    (or a face neighbour of one) holds one of changed_corners(); blocks no add reached give none."""
-    from panovocc_cli.geometry.lattice import unpack_keys
+def test_changed_blocks_are_the_blocks_an_add_reached():
+    """After track_changes, changed_blocks() lists exactly the blocks (voxel index // 8) of the keys that adds
+    and a replace reached since, in key order, on both sides of zero; before track_changes, one line."""
     from panovocc_cli.errors import PanovoccError
-    from panovocc_cli.mapping.export import _touches
 
     rng = np.random.default_rng(3)
     m = VoxelMemory(0.08, memory.GEOMETRY_CHANNELS + (ChannelSpec("E", 1),))
     m.add(_random_delta(rng, 6000, 90, ("A", "N", "F", "O", "E")))
     with pytest.raises(PanovoccError, match="track_changes"):
-        m.changed_corners()
+        m.changed_blocks()
     m.track_changes()
-    assert len(m.changed_corners()) == 0
+    assert m.changed_blocks().shape == (0, 3)
     idx = rng.integers(-8, 9, size=(60, 3)) + np.array([40, -30, 5])  # a local change, blocks on both sides of 0
     keys = np.unique(pack_keys(idx))
     old = Delta(keys, {"A": np.zeros((len(keys), 1), np.int64), "N": np.ones((len(keys), 1), np.int64)})
     m.add(old)
     new = Delta(keys[::2], {"A": np.ones((len(keys[::2]), 1), np.int64), "N": np.ones((len(keys[::2]), 1), np.int64)})
     m.replace(old, new)
-    corners = m.changed_corners()
-    near = np.concatenate([idx] + [idx + d for d in np.vstack([np.eye(3, dtype=int), -np.eye(3, dtype=int)])])
-    assert len(corners) <= 8 * len(np.unique(near // 8, axis=0))  # only the reached blocks
-    for block, halo in ((10, 0), (12, 3), (16, 22)):
-        by_keys, by_corners = _touches(pack_keys(near), block, halo), _touches(corners, block, halo)
-        cubes = np.unique(np.floor_divide(unpack_keys(corners), block), axis=0)
-        cubes = np.unique(np.concatenate([cubes + d for d in np.array(np.meshgrid(*[[-2, -1, 0, 1, 2]] * 3)).reshape(3, -1).T]), axis=0)
-        hits = [c for c in cubes if by_keys(c, None)]
-        assert hits and all(by_corners(c, None) for c in hits)  # conservative: never misses a cube
-        assert sum(by_corners(c, None) for c in cubes) < len(cubes)  # and local: far cubes are not redone
+    want = np.unique(idx // 8, axis=0)
+    got = m.changed_blocks()
+    assert np.array_equal(got, want) and got.dtype == np.int64

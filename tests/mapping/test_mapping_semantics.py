@@ -391,7 +391,7 @@ def test_revise_relabels_near_its_change_only_while_the_export_record_holds(sem_
     (whole / "deltas" / pipeline.EXPORT_RECORD).unlink()  # as a map made before the record
     redo = []
     real = export.consolidate_blocks
-    monkeypatch.setattr(export, "consolidate_blocks", lambda *a, **k: redo.append(k["redo"]) or real(*a, **k))
+    monkeypatch.setattr(export, "consolidate_blocks", lambda *a, **k: redo.append(k["region"]) or real(*a, **k))
     s = run_revise(rev, sem_seq / "poses.txt", progress=False)
     assert s["revised"] == 1 and s["incremental_export"] and redo[-1] is not None
     s = run_revise(whole, sem_seq / "poses.txt", progress=False)
