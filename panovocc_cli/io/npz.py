@@ -55,9 +55,9 @@ class _FixedFeed:
 def _open_entry(zf: zipfile.ZipFile, info: zipfile.ZipInfo, fast: bool):
     """``zf.open(info, "w")``; with ``fast``, the entry's deflate stream made by ISA-L's igzip (``isal``) at
     :data:`FAST_LEVEL` instead of zlib, fed in fixed-size calls (:class:`_FixedFeed`): still a raw deflate
-    stream (ZIP_DEFLATED), read by any zip reader and ``np.load``. On the 453 MB of a building map's
-    ``memory.npz`` entries: 0.75 s of CPU for 122.8 MB against zlib level 1's 3.72 s for 124.7 MB
-    (docs/mapping.md, "memory.npz"). The bytes are those of the pinned ``isal`` version, as zlib's are those of
+    stream (ZIP_DEFLATED), read by any zip reader and ``np.load``. On the 448 MB of a building map's
+    ``memory.npz`` entries: 0.47 s of CPU for 119.5 MB against zlib level 1's 2.99 s for 121.4 MB
+    (docs/mapping.md, "Building revise, eighth pass"). The bytes are those of the pinned ``isal`` version, as zlib's are those of
     the zlib build. Python's zip writer keeps an entry's compressor in ``_compressor`` (3.8-3.14); where it
     does not, the entry is deflated by zlib."""
     f = zf.open(info, "w", force_zip64=True)
@@ -72,7 +72,7 @@ def _open_entry(zf: zipfile.ZipFile, info: zipfile.ZipInfo, fast: bool):
 def load_npz(path: str | Path):
     """``np.load(path, allow_pickle=False)`` whose deflated entries are inflated by ISA-L (``isal``): any raw
     deflate stream, zlib's as well as :func:`write_npz`'s ``fast`` ones, to the same bytes, in about half
-    zlib's CPU (0.85 s against 1.7 s, CRC checks included, for a building map's ``memory.npz``). Where Python's
+    zlib's CPU (0.70 s against 1.26 s, CRC checks included, for a building map's ``memory.npz``). Where Python's
     zip reader keeps no ``_decompressor`` on an entry, zlib inflates it."""
     from isal import isal_zlib
 
