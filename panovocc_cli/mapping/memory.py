@@ -258,16 +258,18 @@ def _cache_entry(bkey):
     return (bk & 7) | ((bj & 7) << 3)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey):
-    """(slot of block ``bkey``, allocating it; n_blocks). Slot -1: the table or the block storage is full.
+    """(slot of block ``bkey``, allocating it; n_blocks), remembered in the slot cache. Slot -1: the table or
+    the block storage is full. Called on a miss of the cache only.
 
-    Block slots are remembered in a small direct-mapped cache indexed by the block's low (j, k) bits:
-    keys in lattice order revisit the same few dozen blocks row after row, so the hash table is probed
-    about once per block and frame."""
+    Block slots are remembered in a small direct-mapped cache indexed by the block's low (j, k) bits
+    (:func:`_cache_entry`): keys in lattice order revisit the same few dozen blocks row after row, so the hash
+    table is probed about once per block and frame. The kernels read the cache themselves and call this on
+    a miss only: called at every row (even inlined, as it was), the call with its seven arrays was 90 % of
+    an add (``_add_dense``: 10.7 against 1.4 ms for the 188,440 rows of a frame of the seed-0 home at
+    1024x512; the same rows, slots and sums; docs/mapping.md, "Speed")."""
     e = _cache_entry(bkey)
-    if cache_keys[e] == bkey:
-        return cache_slots[e], n_blocks
     if n_blocks >= block_keys.shape[0] or 2 * (n_blocks + 1) > table_keys.shape[0]:
         slot = _find(table_keys, table_slots, bkey)  # might need a new block: look, do not insert
         if slot < 0:
@@ -294,7 +296,11 @@ def _add_dense(table_keys, table_slots, block_keys, n_blocks, geo, keys, vals, c
     cache_slots = np.zeros(64, np.int64)
     for n in range(start, keys.shape[0]):
         bkey, o = _block_key_and_offset(keys[n])
-        slot, n_blocks = _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey)
+        e = _cache_entry(bkey)
+        if cache_keys[e] == bkey:  # the cache read here: no call at every row (see _slot)
+            slot = cache_slots[e]
+        else:
+            slot, n_blocks = _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey)
         if slot < 0:
             return 1, n, n_blocks
         for c in range(nc):
@@ -327,7 +333,11 @@ def _add_sparse(table_keys, table_slots, block_keys, n_blocks, page_of, pages, n
         if not nz:
             continue
         bkey, o = _block_key_and_offset(keys[n])
-        slot, n_blocks = _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey)
+        e = _cache_entry(bkey)
+        if cache_keys[e] == bkey:  # the cache read here: no call at every row (see _slot)
+            slot = cache_slots[e]
+        else:
+            slot, n_blocks = _slot(table_keys, table_slots, block_keys, n_blocks, cache_keys, cache_slots, bkey)
         if slot < 0:
             return 1, n, n_blocks, n_pages, n_rows
         p = page_of[slot]
@@ -446,9 +456,15 @@ def _rehash(block_keys, n_blocks, cap):
 @nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _locate(table_keys, table_slots, keys, loc):
     """loc[n] = slot * 512 + offset of voxel keys[n], -1 when its block is not allocated."""
+    cache_keys = np.full(64, -1, np.int64)
+    cache_slots = np.zeros(64, np.int64)
     for n in range(keys.shape[0]):
         bkey, o = _block_key_and_offset(keys[n])
-        s = _find(table_keys, table_slots, bkey)
+        e = _cache_entry(bkey)
+        if cache_keys[e] != bkey:  # the table probed on a miss only (a call at every row is slow: see _slot)
+            cache_keys[e] = bkey
+            cache_slots[e] = _find(table_keys, table_slots, bkey)
+        s = cache_slots[e]
         loc[n] = -1 if s < 0 else s * 512 + o
 
 
@@ -476,21 +492,6 @@ def _sparse_at(page_of, pages, rows, loc, out):
                         out[n, c] = rows[r - 1, c]
 
 
-@nb.njit(cache=True, inline="always")
-def _voxel_nonzero(geo, s, o, p, pages, rows):
-    """Whether voxel ``o`` of block slot ``s`` (its page ``p``, 0: none) has a non-zero channel."""
-    for c in range(geo.shape[2]):
-        if geo[s, o, c] != 0:
-            return True
-    if p > 0:
-        r = pages[p - 1, o]
-        if r > 0:
-            for c in range(rows.shape[1]):
-                if rows[r - 1, c] != 0:
-                    return True
-    return False
-
-
 @nb.njit(cache=True, nogil=True)  # read while the memory is saved on another thread (revise)
 def _ordered_nonzero(slots, bx, by, geo, page_of, pages, rows, has_sparse, b0, b1, dx0, dx1, loc):
     """The voxels with a non-zero channel, in key order, of the blocks ``slots[b0:b1]`` (sorted by block key,
@@ -516,7 +517,19 @@ def _ordered_nonzero(slots, bx, by, geo, page_of, pages, rows, has_sparse, b0, b
                         p = page_of[s] if has_sparse else 0
                         for dz in range(8):
                             o = (dx << 6) | (dy << 3) | dz
-                            if _voxel_nonzero(geo, s, o, p, pages, rows):
+                            nz = False  # a non-zero channel (written out: a call at every voxel is slow, see _slot)
+                            for c in range(geo.shape[2]):
+                                if geo[s, o, c] != 0:
+                                    nz = True
+                                    break
+                            if not nz and p > 0:
+                                r = pages[p - 1, o]
+                                if r > 0:
+                                    for c in range(rows.shape[1]):
+                                        if rows[r - 1, c] != 0:
+                                            nz = True
+                                            break
+                            if nz:
                                 loc[cnt] = s * 512 + o
                                 cnt += 1
                 j = k
