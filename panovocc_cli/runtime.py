@@ -17,8 +17,9 @@ What it does, and why (figures: docs/mapping.md, "Speed"):
   with the thread it waits for: the geometric update collapsed from ~10 to 66-130 ms/frame under load.
   libgomp reads it when numba first loads it, so :func:`setup` must come before the first parallel
   kernel runs.
-* glibc ``mallopt``: keep freed memory in the process (:func:`keep_freed_heap`); ``revise`` also keeps
-  freed blocks of any size (:func:`hold_freed_blocks`).
+* glibc ``mallopt``: keep freed memory in the process (:func:`keep_freed_heap`). (``revise`` also kept
+  freed blocks of any size until 2026-12-06, when it had become 2.7 % slower with it: docs/mapping.md, "Revise
+  at building scale".)
 
 It also holds the one memory check of the commands (:func:`check_memory`): a command that would allocate
 more than it can have refuses in one line before any work, instead of being killed for memory.
@@ -74,23 +75,6 @@ def keep_freed_heap() -> bool:
         libc = ctypes.CDLL("libc.so.6")
         return bool(libc.mallopt(-1, HEAP_TRIM_BYTES)) and bool(libc.mallopt(-3, HEAP_MMAP_BYTES)) and bool(
             libc.mallopt(-8, HEAP_ARENAS))
-    except (OSError, AttributeError):
-        return False
-
-
-def hold_freed_blocks() -> bool:
-    """Serve every allocation from glibc's heap (``M_MMAP_MAX`` 0) and never trim it (``M_TRIM_THRESHOLD``
-    at its largest): a freed block of any size stays in the process and the next allocation reuses its
-    pages. For ``revise``, which reads, writes and exports a building's memory as arrays of hundreds of MB
-    one after another: each would otherwise be a fresh mapping whose pages the kernel zeroes again (on the
-    2-core machine about 2 s of system time a fresh GB; a revise of nothing on the 7,661-frame building
-    spent 9.2 s of its 30 in the kernel, 4.2 s with this: docs/mapping.md, "Revise at building scale").
-    The process's resident memory then stays at its peak until it exits. True when glibc did it."""
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        return bool(libc.mallopt(-4, 0)) and bool(libc.mallopt(-1, ctypes.c_int(2 ** 31 - 1)))
     except (OSError, AttributeError):
         return False
 

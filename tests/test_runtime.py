@@ -72,21 +72,3 @@ def test_check_memory_refuses_an_estimate_beyond_the_memory_available(monkeypatc
         msg = str(e.value)
         assert msg.startswith("x.npz: a grid needs about ") and "10.0 GiB is available: choose less" in msg, msg
         assert "\n" not in msg
-
-
-def test_holding_freed_blocks_reuses_a_large_freed_array_without_page_faults():
-    """``hold_freed_blocks`` (what ``revise`` asks for: it loads, writes and exports arrays of hundreds of
-    MB one after another) keeps a freed 96 MB block in the process: the next one reuses its pages instead of
-    faulting fresh ones in; the revise command calls it."""
-    code = ("import resource, numpy as np, panovocc_cli.runtime as rt\n"
-            "held = rt.hold_freed_blocks()\n"
-            "def fill():\n"
-            "    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
-            "    a = np.empty(12 * 2 ** 20, np.int64); a.fill(1); del a\n"
-            "    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0\n"
-            "print(held, fill(), fill())\n")
-    held, first, second = _run(code, _env()).split()
-    assert held == "True" and int(first) > 20 and int(second) <= int(first) // 10
-    src = open(os.path.join(os.path.dirname(__file__), "..", "panovocc_cli", "cli", "map_cmds.py")).read()
-    body = src.split('"revise")', 1)[1].split("@config_command", 1)[0]
-    assert "hold_freed_blocks()" in body

@@ -182,9 +182,6 @@ def _report(summary: dict) -> None:
 def revise(o: OptionValues) -> None:
     """Re-integrate exactly the frames whose pose changed, and rewrite OUT/prediction.npz and OUT/map.ply."""
     from ..mapping.pipeline import run_revise
-    from ..runtime import hold_freed_blocks
-
-    hold_freed_blocks()  # the memory's load, write and export reuse each other's freed pages
 
     s = run_revise(ReviseConfig(**o))
     classed = f", {s['classed']} with a class" if "classed" in s else ""
