@@ -571,11 +571,9 @@ def relabel_region(keys: np.ndarray, changed_keys, changed_blocks, halo: int) ->
     near, reach = _dilated_blocks(blocks, r1), _dilated_blocks(blocks, r2)
     region = np.zeros(len(keys), np.uint8)
     for sl in _slices(len(keys)):
-        kb = pack_keys(unpack_keys(keys[sl]) // MEMORY_BLOCK)
+        kb = _key_blocks(keys[sl])
         for b in (reach, near):  # near lies within reach: 2 near, 1 reach only
-            if len(b):
-                pos = np.minimum(np.searchsorted(b, kb), len(b) - 1)
-                region[sl] += (b[pos] == kb).astype(np.uint8)
+            region[sl] += _sorted_isin(kb, b)
     return region
 
 
@@ -697,10 +695,15 @@ def _sorted_isin(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return b[pos] == a
 
 
+def _key_blocks(keys: np.ndarray) -> np.ndarray:
+    """The packed memory-block index (voxel index // :data:`~.memory.BLOCK`) of each voxel key, (n,) int64."""
+    return np.concatenate([pack_keys(unpack_keys(keys[sl]) // MEMORY_BLOCK) for sl in _slices(len(keys))]
+                          + [np.zeros(0, np.int64)])
+
+
 def _block_keys(keys: np.ndarray) -> np.ndarray:
-    """Packed memory-block indices (voxel index // :data:`~.memory.BLOCK`) of voxel ``keys``, unique, sorted."""
-    return np.unique(np.concatenate([pack_keys(unpack_keys(keys[sl]) // MEMORY_BLOCK) for sl in _slices(len(keys))]
-                                    + [np.zeros(0, np.int64)]))
+    """Packed memory-block indices of voxel ``keys`` (:func:`_key_blocks`), unique, sorted."""
+    return np.unique(_key_blocks(keys))
 
 
 def previous_labels(grid: Grid, occupied_keys: np.ndarray, origin_index) -> np.ndarray:
