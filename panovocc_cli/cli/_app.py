@@ -11,3 +11,10 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
+
+
+@app.callback()
+def _commands() -> None:
+    """A group of commands whatever is registered: ``panovocc version`` registers only ``version``, and a Typer
+    app with one command and no callback runs that command on its own (``panovocc version`` then refused the
+    word ``version`` as an extra argument)."""

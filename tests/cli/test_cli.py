@@ -24,6 +24,15 @@ def test_top_level_help_lists_every_command():
         assert c in r.stdout, c
 
 
+def test_version_prints_the_version():
+    """``panovocc version`` alone registers one command; the app stays a group (it once took ``version`` for an
+    extra argument of that command and exited 2)."""
+    from panovocc_cli import __version__
+
+    r = run("version")
+    assert r.returncode == 0 and r.stdout.strip() == __version__, r.stderr
+
+
 @pytest.mark.parametrize("cmd", COMMANDS + SUBCOMMANDS)
 def test_subcommand_help(cmd):
     r = run(*([cmd] if isinstance(cmd, str) else cmd), "--help")
