@@ -72,3 +72,46 @@ def test_check_memory_refuses_an_estimate_beyond_the_memory_available(monkeypatc
         msg = str(e.value)
         assert msg.startswith("x.npz: a grid needs about ") and "10.0 GiB is available: choose less" in msg, msg
         assert "\n" not in msg
+
+
+def _entry(prelude: str, argv: list, env=None) -> subprocess.CompletedProcess:
+    """``panovocc ARGV`` through the console entry point (:func:`panovocc_cli.cli.entry`) after ``prelude``."""
+    code = (prelude + "\nimport sys\nsys.argv = ['panovocc'] + " + repr(argv) + "\n"
+            "from panovocc_cli.cli import entry\nentry()\nprint('not reached')\n")
+    return subprocess.run([sys.executable, "-c", code], env=env or _env(), capture_output=True, text=True)
+
+
+def test_the_entry_point_runs_exit_handlers_and_flushes_before_its_quick_exit():
+    """After a command that succeeded the process ends in runtime.quick_exit: the atexit handlers have run,
+    buffered output is out (stdout is a pipe here), the status is 0 and nothing after entry() runs."""
+    r = _entry("import atexit\natexit.register(lambda: print('handler ran', flush=False))", ["version"])
+    from panovocc_cli import __version__
+
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == [__version__, "handler ran"]
+
+
+def test_the_entry_point_leaves_a_failure_to_the_normal_exit():
+    r = _entry("import atexit\natexit.register(lambda: print('handler ran'))", ["eval", "/nonexistent/p.npz",
+                                                                              "/nonexistent/g.npz"])
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
+    assert r.stdout.splitlines() == ["handler ran"]
+
+
+def test_the_entry_point_waits_for_a_thread_still_working(tmp_path):
+    """A thread that is not a daemon and still runs when the command returns is not cut short: the process exits
+    the normal way, after it (its file is written)."""
+    out = tmp_path / "late.txt"
+    prelude = ("import threading, time\n"
+               f"def work():\n    time.sleep(0.5)\n    open({str(out)!r}, 'w').write('done')\n"
+               "threading.Thread(target=work).start()")
+    r = _entry(prelude, ["version"])
+    assert r.returncode == 0, r.stderr
+    assert out.read_text() == "done"
+
+
+def test_python_m_panovocc_cli_goes_through_the_entry_point():
+    r = subprocess.run([sys.executable, "-m", "panovocc_cli", "version"], capture_output=True, text=True, env=_env())
+    from panovocc_cli import __version__
+
+    assert r.returncode == 0 and r.stdout.strip() == __version__

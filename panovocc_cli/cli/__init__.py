@@ -82,6 +82,20 @@ def load_commands(argv: list[str] | None = None) -> typer.Typer:
     return app
 
 
+def entry() -> None:
+    """The ``panovocc`` console script and ``python -m panovocc_cli``: :func:`main` on ``sys.argv``; a command that
+    succeeded then ends the process without the interpreter's teardown (:func:`panovocc_cli.runtime.quick_exit`:
+    its ``atexit`` handlers run and its output is flushed first). A failure exits as :func:`main` raises it."""
+    try:
+        main()
+    except SystemExit as e:
+        if e.code not in (0, None):
+            raise
+    from ..runtime import quick_exit
+
+    quick_exit(0)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: expected failures print one line and exit 2; others keep their traceback.
 
