@@ -12,7 +12,6 @@ app = typer.Typer(
 )
 
 
-
 @app.callback()
 def _commands() -> None:
     """A group of commands whatever is registered: ``panovocc version`` registers only ``version``, and a Typer
