@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import MATCH_MAX_DIFF, MAX_POSITION_M
+from ..config import MATCH_MAX_DIFF, MAX_POSITION_M, RIGID_TOL
 from ..errors import PanovoccError
 from ..geometry.poses import check_rigid, quat_to_rot, rot_to_quat
 from .atomic import write_text
@@ -69,7 +69,18 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
         raise PanovoccError(
             f"line {rows[0][0]}: {width} numbers; expected 16 (T_world_cam row-major, NICE-SLAM form) "
             "or 8 (TUM form: t tx ty tz qx qy qz qw)", path)
-    poses, stamps, line_of = [], [], {}
+    poses, stamps, line_of, lines = [], [], {}, []
+    try:
+        _parse_rows(path, rows, width, poses, stamps, line_of, lines)
+    except PanovoccError:
+        _checked_poses(poses, lines, path)  # a pose before the bad line that is not rigid is named first,
+        raise                               # as the lines are read in order
+    return np.array(stamps, np.float64), _checked_poses(poses, lines, path), ("tum" if width == 8 else "nice-slam")
+
+
+def _parse_rows(path: Path, rows, width: int, poses: list, stamps: list, line_of: dict, lines: list) -> None:
+    """:func:`read_trajectory`'s lines as numbers: each line's 4x4 pose appended to ``poses`` (not checked rigid
+    yet), its timestamp to ``stamps``, its line number to ``lines``; one line naming the file otherwise."""
     for n, parts in rows:
         if len(parts) != width:
             raise PanovoccError(f"line {n}: {len(parts)} numbers, expected {width} like line {rows[0][0]}", path)
@@ -93,8 +104,28 @@ def read_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
                                     "one pose per timestamp", path)
             line_of[vals[0]] = n
         stamps.append(vals[0] if width == 8 else float(len(stamps)))
-        poses.append(_checked_pose(T, path, f"line {n}"))
-    return np.array(stamps, np.float64), np.stack(poses), ("tum" if width == 8 else "nice-slam")
+        poses.append(T)
+        lines.append(n)
+
+
+def _checked_poses(poses: list, lines: list, path: Path) -> np.ndarray:
+    """The poses (a list of (4, 4)) stacked, each checked as :func:`_checked_pose` checks it; the first that fails
+    raises its error. All at once first: a pose well inside every bound (finite, last row [0 0 0 1], rotation
+    orthonormal to a tenth of the tolerance with det > 0.5, camera within ``MAX_POSITION_M``) is not checked
+    again one by one, the others are, in order, by :func:`_checked_pose` itself (the same test and message;
+    a pose file of 7,661 lines was 0.21 s of checks one by one)."""
+    if not poses:
+        return np.zeros((0, 4, 4), np.float64)
+    T = np.stack(poses).astype(np.float64, copy=False)
+    with np.errstate(invalid="ignore", over="ignore"):
+        R = T[:, :3, :3]
+        err = np.abs(np.einsum("nij,nkj->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+        clear = (np.isfinite(T).all(axis=(1, 2)) & (np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= RIGID_TOL / 2)
+                 & (err <= RIGID_TOL / 10) & (np.linalg.det(np.where(np.isfinite(R), R, 0.0)) > 0.5)
+                 & (np.abs(T[:, :3, 3]).max(axis=1) <= MAX_POSITION_M))
+    for i in np.flatnonzero(~clear):
+        T[i] = _checked_pose(T[i], path, f"line {lines[i]}")
+    return T
 
 
 def _checked_pose(T: np.ndarray, path: Path, where: str) -> np.ndarray:

@@ -430,3 +430,44 @@ def test_a_threaded_npz_write_that_fails_leaves_nothing(tmp_path, monkeypatch):
         npz.write_npz(tmp_path / "b.npz", arrays, threaded=True)
     assert not list(tmp_path.iterdir())
     assert not [t for t in threading.enumerate() if t.name == "write_npz"]
+
+
+def test_read_poses_checks_every_pose_as_one_by_one(tmp_path):
+    """read_trajectory checks its poses all at once and again one by one only where one is near a bound: the
+    same poses and, for a bad file, the same first error as checking line by line (a pose that is not rigid
+    before a ragged line is named first; a pose within the tolerance but off by more than a tenth of it, or a
+    camera right at MAX_POSITION_M, passes as before)."""
+    from panovocc_cli.config import MAX_POSITION_M, RIGID_TOL
+    from panovocc_cli.geometry.poses import check_rigid, quat_to_rot
+    from panovocc_cli.io.poses import read_poses
+
+    rng = np.random.default_rng(3)
+    T = np.tile(np.eye(4), (6, 1, 1))
+    for i in range(6):
+        q = rng.standard_normal(4)
+        T[i, :3, :3] = quat_to_rot(q)
+        T[i, :3, 3] = rng.uniform(-50, 50, 3)
+    T[2, :3, :3] *= 1 + 0.4 * RIGID_TOL  # orthonormal within the tolerance, not within a tenth of it
+    T[3, :3, 3] = [MAX_POSITION_M, 0.0, -MAX_POSITION_M]
+    lines = ["".join(" ".join(repr(float(x)) for x in t.reshape(-1)) + "\n" for t in T)]
+    p = tmp_path / "ok.txt"
+    p.write_text("".join(lines))
+    got = read_poses(p)
+    assert np.array_equal(got, np.stack([check_rigid(t) for t in T]))
+
+    bad = T.copy()
+    bad[1, 0, 0] += 10 * RIGID_TOL  # line 2 not rigid
+    text = "".join(" ".join(repr(float(x)) for x in t.reshape(-1)) + "\n" for t in bad).splitlines(keepends=True)
+    text[4] = "1 2 3\n"  # and line 5 ragged: line 2 is named, as a line-by-line read names it
+    p.write_text("".join(text))
+    with pytest.raises(PanovoccError, match="line 2: not rigid"):
+        read_poses(p)
+    text[1] = " ".join(repr(float(x)) for x in T[1].reshape(-1)) + "\n"  # line 2 fixed: line 5's error now
+    p.write_text("".join(text))
+    with pytest.raises(PanovoccError, match="line 5: 3 numbers"):
+        read_poses(p)
+    far = T.copy()
+    far[4, 1, 3] = MAX_POSITION_M * 1.01
+    p.write_text("".join(" ".join(repr(float(x)) for x in t.reshape(-1)) + "\n" for t in far))
+    with pytest.raises(PanovoccError, match="line 5: camera position"):
+        read_poses(p)
