@@ -28,6 +28,20 @@ def check_rigid(T, what: str = "pose", tol: float = RIGID_TOL) -> np.ndarray:
     return T
 
 
+def clearly_rigid(T, tol: float = RIGID_TOL) -> np.ndarray:
+    """Which of the poses ``T`` (n, 4, 4) :func:`check_rigid` accepts with a margin, all at once: (n,) bool, True
+    where every entry is finite, the last row is within ``tol / 2`` of [0 0 0 1] and the rotation orthonormal
+    within ``tol / 10`` with det > 0.5. A pose marked False may still pass: check it with :func:`check_rigid`
+    itself, which then gives its error (the margins keep a pose near a bound away from float differences
+    between this batched test and that one)."""
+    T = np.asarray(T, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        R = T[:, :3, :3]
+        err = np.abs(np.einsum("nij,nkj->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+        return (np.isfinite(T).all(axis=(1, 2)) & (np.abs(T[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= tol / 2)
+                & (err <= tol / 10) & (np.linalg.det(np.where(np.isfinite(R), R, 0.0)) > 0.5))
+
+
 def quat_to_rot(q_xyzw) -> np.ndarray:
     """Rotation matrix (3, 3) from a unit quaternion in TUM order (x, y, z, w)."""
     x, y, z, w = np.asarray(q_xyzw, dtype=np.float64) / np.linalg.norm(q_xyzw)

@@ -5,7 +5,7 @@ import pytest
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.geometry import erp, lattice
-from panovocc_cli.geometry.poses import check_rigid, look_at, quat_to_rot, rot_to_quat
+from panovocc_cli.geometry.poses import check_rigid, clearly_rigid, look_at, quat_to_rot, rot_to_quat
 
 
 def test_erp_angles_follow_conventions():
@@ -137,3 +137,26 @@ def test_poses_and_quaternions():
     bad[:3, :3] *= 1.1
     with pytest.raises(PanovoccError, match="not rigid"):
         check_rigid(bad)
+
+
+def test_clearly_rigid_marks_only_poses_check_rigid_accepts():
+    """The batched test beside check_rigid: rigid poses True; a scale, a reflection, a NaN, a bad last row False
+    (check_rigid refuses each); a pose within the tolerance but off by more than a tenth of it False too (it is
+    then checked one by one, and check_rigid accepts it)."""
+    from panovocc_cli.config import RIGID_TOL
+
+    rng = np.random.default_rng(5)
+    T = np.tile(np.eye(4), (7, 1, 1))
+    for i in range(7):
+        T[i, :3, :3] = quat_to_rot(rng.standard_normal(4))
+        T[i, :3, 3] = rng.uniform(-10, 10, 3)
+    T[1, :3, :3] *= 1.1
+    T[2, :3, 0] *= -1
+    T[3, 0, 1] = np.nan
+    T[4, 3, 0] = 0.5
+    T[5, :3, :3] *= 1 + 0.4 * RIGID_TOL
+    assert clearly_rigid(T).tolist() == [True, False, False, False, False, False, True]
+    for i in (1, 2, 3, 4):
+        with pytest.raises(PanovoccError):
+            check_rigid(T[i])
+    check_rigid(T[5])
