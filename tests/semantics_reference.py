@@ -5,7 +5,8 @@ weights; :func:`frame_semantic_delta_numpy` is the plain-numpy chain ``erp_norma
 ``measurement_weights`` -> ``semantic_frame_delta`` that ``panovocc map`` ran before the step was
 compiled (``panovocc_cli.semantics.evidence.frame_semantic_delta``); :func:`simulate_logits_numpy` is
 the simulated segmenter in plain numpy (its fields, ellipses and boundary erosion as before they were
-compiled, with the seeded confidence model). The tests compare each pair.
+compiled, with the seeded confidence model); :func:`affinity_numpy` and :func:`transition_scipy` are GSC's edge affinity and
+transition matrix as numpy and scipy made them before they were compiled (``panovocc_cli.semantics.gsc``). The tests compare each pair.
 """
 
 from __future__ import annotations
@@ -353,3 +354,34 @@ def simulate_logits_numpy(labels: np.ndarray, class_names: Sequence[str], vocab:
     if T != 1.0:
         logits *= np.float32(1.0 / T)
     return np.ascontiguousarray(logits, dtype=np.float32)
+
+
+def affinity_numpy(i, j, axis, g, nh, col, params) -> np.ndarray:
+    """GSC's edge affinity ``k_g k_n k_t k_c`` (float32 inputs: ``g`` (n,), unit normals ``nh`` (n, 3), colours
+    ``col`` (n, 3) with NaN unknown), one numpy temporary per operation, as ``gsc._affinity`` was written before
+    2026-12-06."""
+    k_g = np.exp(-np.abs(g[i] - g[j]) / np.float32(params.s_g))
+    ni, nj = nh[i], nh[j]
+    dot = np.einsum("mk,mk->m", ni, nj)
+    has_n = (np.abs(ni).sum(1) > 0) & (np.abs(nj).sum(1) > 0)
+    k_n = np.where(has_n, np.maximum(dot, 0.0) ** np.float32(params.normal_power), 1.0)
+    ai, aj = ni[np.arange(i.size), axis], nj[np.arange(j.size), axis]
+    k_t = np.exp(-(ai * ai + aj * aj) / np.float32(2.0 * params.s_t))
+    dc = col[i] - col[j]
+    d2 = np.einsum("mk,mk->m", dc, dc)
+    k_c = np.where(np.isfinite(d2), np.exp(-np.nan_to_num(d2) / np.float32(2.0 * params.s_c ** 2)), 1.0)
+    return (k_g * k_n * k_t * k_c).astype(np.float32)
+
+
+def transition_scipy(n: int, i, j, w):
+    """GSC's row-normalised transition matrix as scipy built it before 2026-12-06: (indptr, indices, data) of its
+    CSR matrix and ``csr.sum(axis=1)`` as float32."""
+    import scipy.sparse as sp
+
+    keep = w > 0
+    it = np.int32 if n < 2 ** 31 else np.int64
+    i, j, w = i[keep].astype(it), j[keep].astype(it), w[keep].astype(np.float32)
+    rows, cols, vals = np.concatenate([i, j]), np.concatenate([j, i]), np.concatenate([w, w])
+    deg = np.bincount(rows, weights=vals, minlength=n).astype(np.float32)
+    W = sp.csr_matrix(((vals / deg[rows]).astype(np.float32), (rows, cols)), shape=(n, n))
+    return W.indptr, W.indices, W.data, np.asarray(W.sum(axis=1)).ravel().astype(np.float32)

@@ -54,6 +54,54 @@ def test_affinity_terms():
     assert w[0] == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("power", [2.0, 3.0, 1.5])
+def test_affinity_equals_the_numpy_expressions_bit_for_bit(power):
+    """The compiled gathers (gsc_kernels.edge_terms) give numpy's affinity to the bit: signed zeros, unknown
+    normals (zero rows, also a single non-zero component) and colours (NaN), scores from 0 to tens."""
+    from semantics_reference import affinity_numpy
+
+    from panovocc_cli.semantics.gsc import _affinity, unit_rows
+
+    rng = np.random.default_rng(int(power * 10))
+    n, m = 5000, 40000
+    i, j = rng.integers(0, n, m), rng.integers(0, n, m)
+    axis = rng.integers(0, 3, m).astype(np.int8)
+    g = (rng.normal(size=n) * rng.choice([0.0, 1e-3, 1.0, 30.0], n)).astype(np.float32)
+    nrm = rng.normal(size=(n, 3))
+    nrm[rng.random(n) < 0.1] = 0
+    nrm[rng.random(n) < 0.05, 1:] = 0
+    nrm[rng.random(n) < 0.05] = [0.0, -1.0, 0.0]  # dot products of -0.0 and exactly 0
+    nh = unit_rows(nrm)
+    col = (rng.random((n, 3)) * 255).astype(np.float32)
+    col[rng.random(n) < 0.1] = np.nan
+    p = GSCParams(normal_power=power)
+    for it in (np.int32, np.int64):  # the two index types neighbour_edges hands out
+        w = _affinity(i.astype(it), j.astype(it), axis, g, nh, col, p)
+        ref = affinity_numpy(i, j, axis, g, nh, col, p)
+        assert w.dtype == np.float32 and np.array_equal(w.view(np.uint32), ref.view(np.uint32))
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e-30])
+def test_transition_matrix_equals_scipy_bit_for_bit(scale):
+    """The compiled CSR (gsc_kernels.transition_csr) is scipy's matrix of the doubled edges to the bit: its row
+    pointers, columns (sorted within a row), weights over float64 degrees, and numpy's row sums; edges of zero
+    weight left out, rows with none empty; weights near float32's smallest."""
+    from semantics_reference import transition_scipy
+
+    from panovocc_cli.geometry.lattice import pack_keys
+    from panovocc_cli.semantics.gsc import transition_matrix
+
+    rng = np.random.default_rng(7)
+    idx = np.unique(rng.integers(0, 25, (9000, 3)), axis=0)
+    idx = idx[np.argsort(pack_keys(idx))]
+    i, j, _ = neighbour_edges(idx)
+    w = (rng.random(i.size) * scale).astype(np.float32)
+    w[rng.random(i.size) < 0.2] = 0
+    got, ref = transition_matrix(len(idx), i, j, w), transition_scipy(len(idx), i, j, w)
+    for a, b in zip(got, ref):
+        assert a.dtype == b.dtype and np.array_equal(a.view(np.uint8), b.view(np.uint8))
+
+
 def test_anchor_strength():
     p = np.array([[1.0, 0.0], [0.5, 0.5], [1.0, 0.0]])
     rho = anchor_strength(p, np.array([2.0, 5.0, 0.0]), S0=2.0)
