@@ -171,6 +171,6 @@ def semantic_delta(depth: np.ndarray, rgb: np.ndarray, obs, T_world_cam: np.ndar
     """
     from ..semantics.evidence import frame_semantic_delta
 
-    depth = np.where((depth >= min_range) & (depth <= max_range), depth, 0.0).astype(np.float32)
-    keys, ch = frame_semantic_delta(depth, rgb, obs, T_world_cam, voxel_size, weights, rays)
+    keys, ch = frame_semantic_delta(depth, rgb, obs, T_world_cam, voxel_size, weights, rays,
+                                    depth_range=(min_range, max_range))
     return quantize_semantic_delta(keys, ch)

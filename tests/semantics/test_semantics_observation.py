@@ -1,5 +1,7 @@
 """The semantic observation a map keeps of a segmenter's output, and the integer semantic delta made from it."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from semantics_reference import softmax
@@ -23,6 +25,19 @@ def test_observation_is_the_top_two_softmax_in_fifteenths():
     conf, share = measurement(obs)
     np.testing.assert_allclose(conf, obs.q[..., 0] / 15)
     np.testing.assert_allclose(share.sum(-1)[obs.q.sum(-1) > 0], 1, rtol=1e-6)
+
+
+def test_the_sums_read_each_pixel_as_measurement_does():
+    """The evidence kernels' per-pixel confidence and shares (evidence._pixel_measurement, made where they are
+    summed) equal measurement()'s arrays bit for bit, for every pair of levels a uint8 holds."""
+    from panovocc_cli.semantics.evidence import _pixel_measurement
+
+    q1, q2 = np.meshgrid(np.arange(256), np.arange(256), indexing="ij")
+    obs = SimpleNamespace(q=np.stack([q1, q2], -1).astype(np.uint8))
+    conf, share = measurement(obs)
+    got = np.array([_pixel_measurement(np.uint8(a), np.uint8(b)) for a, b in zip(q1.ravel(), q2.ravel())], np.float32)
+    want = np.concatenate([conf.reshape(-1, 1), share.reshape(-1, 2)], 1)
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
 @pytest.mark.parametrize("C", [1, 2, 16, 17, 40])
