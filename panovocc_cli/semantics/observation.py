@@ -144,8 +144,15 @@ def _observe(logits, classes, q, levels):
                     i2 = k
             m = np.float64(l[i1])
             tot = 0.0
+            e2 = 0.0
             for k in range(C):
-                tot += np.exp(np.float64(l[k]) - m)
+                if k == i1:  # exp(0) is 1 exactly: the same sum, one exponential less
+                    tot += 1.0
+                else:
+                    e = np.exp(np.float64(l[k]) - m)
+                    tot += e
+                    if k == i2:  # kept for q2: the same value, not computed twice
+                        e2 = e
             classes[v, u, 0] = i1
             q[v, u, 0] = np.uint8(np.rint(levels / tot))
             if i2 < 0:  # one class
@@ -153,7 +160,7 @@ def _observe(logits, classes, q, levels):
                 q[v, u, 1] = 0
             else:
                 classes[v, u, 1] = i2
-                q[v, u, 1] = np.uint8(np.rint(levels * np.exp(np.float64(l[i2]) - m) / tot))
+                q[v, u, 1] = np.uint8(np.rint(levels * e2 / tot))
 
 
 def measurement(obs: SemanticObservation) -> tuple[np.ndarray, np.ndarray]:
