@@ -15,7 +15,9 @@ MODES, joined by any separator (e.g. ``gate+mallinfo``):
 * ``gatewriter`` (with ``gate``): the writer thread holds the same lock while it encodes a record's arrays;
 * ``zreuse``: one Zstandard compressor a thread, reused for every record (the same record bytes);
 * ``mallinfo``: after frames 0, 1, 2, 10, 100, 600 and 1,199, print glibc's main heap (``mallinfo2``: its
-  size, the bytes in use and free) and the resident memory, MiB.
+  size, the bytes in use and free) and the resident memory, MiB;
+* ``trim`` / ``trimN``: glibc's ``malloc_trim(0)`` after every frame / every N-th frame on the mapping thread
+  (the heap's free pages handed back, as ``runtime.release_freed_heap`` does once before the export).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import struct
 import sys
 import threading
@@ -128,6 +131,21 @@ def _mallinfo():
     mp.Mapper.integrate = sampled
 
 
+def _trim(every: int):
+    import ctypes
+
+    libc = ctypes.CDLL("libc.so.6")
+    integrate = mp.Mapper.integrate
+
+    def trimmed(self, frame, *a, **k):
+        r = integrate(self, frame, *a, **k)
+        if frame.index % every == 0:
+            libc.malloc_trim(0)
+        return r
+
+    mp.Mapper.integrate = trimmed
+
+
 def main() -> None:
     if "noreader" in MODE:
         _noreader()
@@ -139,6 +157,9 @@ def main() -> None:
         _zreuse()
     if "mallinfo" in MODE:
         _mallinfo()
+    m = re.search(r"trim(\d*)", MODE)
+    if m:
+        _trim(int(m.group(1) or 1))
     from panovocc_cli.cli import main as cli
 
     sys.argv[0] = "panovocc"
