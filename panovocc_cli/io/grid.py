@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from ..grid import Grid
-from .npz import write_npz
+from .npz import check_npz, write_npz
 
 
 
@@ -28,6 +28,7 @@ def read_grid(path: str | Path) -> Grid:
     path = Path(path)
     if not path.is_file():
         raise PanovoccError("grid file not found", path)
+    check_npz(path, "a grid .npz (labels, origin, voxel_size, class_names) written by map or gt")
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in ("labels", "origin", "voxel_size", "class_names") if k not in z.files]

@@ -13,6 +13,7 @@ from typing import Callable, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
+from ..errors import PanovoccError
 from .atomic import atomic_path
 
 _FIXED_DATE = (1980, 1, 1, 0, 0, 0)
@@ -66,6 +67,20 @@ def _open_entry(zf: zipfile.ZipFile, info: zipfile.ZipInfo, fast: bool):
 
         f._compressor = _FixedFeed(isal_zlib.compressobj(FAST_LEVEL, isal_zlib.DEFLATED, -15))
     return f
+
+
+ZIP_STARTS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip's first entry, or an empty archive's end record
+
+
+def check_npz(path: str | Path, expected: str) -> None:
+    """Refuse in one line a file that is not a zip archive before ``np.load`` reads it: numpy takes any other
+    file for a pickle and says that it "contains pickled (object) data" (a text file, an ``.npy`` array).
+    ``expected`` says what the file should be."""
+    with open(path, "rb") as f:
+        start = f.read(4)
+    if start not in ZIP_STARTS:
+        kind = "an .npy array" if start.startswith(b"\x93NUM") else "empty" if not start else "not a zip archive"
+        raise PanovoccError(f"not an .npz file ({kind}); expected {expected}", path)
 
 
 @contextmanager

@@ -30,7 +30,7 @@ from ..frame import logits_stride
 from .atomic import write_text
 from .images import read_image, write_png
 from .jsonfile import read_json
-from .npz import write_npz
+from .npz import check_npz, write_npz
 from .sequence import frame_stem
 
 DEFAULT_LABEL_CONFIDENCE = 0.9
@@ -80,6 +80,7 @@ def read_frame_scores(folder: str | Path, stem: str, n_classes: int, shape: tupl
     npz = folder / f"{stem}.npz"
     png = folder / f"{stem}.png"
     if npz.is_file():
+        check_npz(npz, "an .npz holding a (H, W, C) array 'logits' or 'probs'")
         try:
             with np.load(npz, allow_pickle=False) as z:
                 keys = set(z.files)

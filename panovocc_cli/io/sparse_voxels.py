@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import PanovoccError
 from ..geometry.lattice import point_to_index
-from .npz import write_npz
+from .npz import check_npz, write_npz
 
 SPARSE_KEYS = ("centers", "voxel_size", "class_names")
 
@@ -46,6 +46,7 @@ def read_sparse_voxels(path: str | Path):
     path = Path(path)
     if not path.is_file():
         raise PanovoccError("sparse voxels file not found", path)
+    check_npz(path, "a sparse voxels .npz (centers, voxel_size, class_names)")
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in SPARSE_KEYS if k not in z.files]

@@ -567,7 +567,12 @@ CASES = [
     C("scene", "render-duplicate-class-names",
       lambda b, t: ["render", scene_with_info(b, t, dup_class), t / "out"], "duplicate"),
     # --- grids
-    C("grid", "eval-not-npz", lambda b, t: ["eval", write(t / "p.npz", "hello"), b / "gt.npz"], "npz"),
+    C("grid", "eval-not-npz", lambda b, t: ["eval", write(t / "p.npz", "hello"), b / "gt.npz"],
+      "not an .npz file (not a zip archive)"),  # numpy alone would call it pickled data
+    C("grid", "eval-npy-array", lambda b, t: ["eval", (lambda p: np.save(p, np.zeros(3)) or p)(t / "p.npy"),
+                                              b / "gt.npz"], "not an .npz file (an .npy array)"),
+    C("grid", "eval-empty-file", lambda b, t: ["eval", write(t / "p.npz", ""), b / "gt.npz"],
+      "not an .npz file (empty)"),
     C("grid", "eval-missing-keys", lambda b, t: ["eval", grid_npz(t / "p.npz", labels=np.zeros((2, 2, 2), np.uint8)),
                                                  b / "gt.npz"], "missing keys"),
     C("grid", "eval-pickled-names",
