@@ -148,8 +148,12 @@ def test_no_overlap_with_the_vocabulary(tmp_path):
 
 
 def test_corrupt_npz(tmp_path):
+    """A file that is not a zip archive, and a zip archive that is broken, are each refused in one line."""
     _setup(tmp_path)
     (tmp_path / "000000.npz").write_bytes(b"not a zip")
+    with pytest.raises(PanovoccError, match=r"not an \.npz file \(not a zip archive\); expected an \.npz holding"):
+        PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, frame_id=0)
+    (tmp_path / "000000.npz").write_bytes(b"PK\x03\x04 but no more of a zip")
     with pytest.raises(PanovoccError, match="cannot read"):
         PrecomputedSegmenter(tmp_path).logits(RGB, FILE_VOCAB, frame_id=0)
 
