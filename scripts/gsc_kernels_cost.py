@@ -39,8 +39,10 @@ def main() -> None:
     col = (rng.random((n, 3)) * 255).astype(np.float32)
     same = np.array_equal(_affinity(i, j, axis, g, nh, col, p).view(np.uint32),
                           affinity_numpy(i, j, axis, g, nh, col, p).view(np.uint32))
-    print(f"affinity, {m:,} edges of {n:,} voxels: numpy {best(lambda: affinity_numpy(i, j, axis, g, nh, col, p)):.1f} ms, "
-          f"compiled {best(lambda: _affinity(i, j, axis, g, nh, col, p)):.1f} ms, same bits: {same}")
+    t_numpy = best(lambda: affinity_numpy(i, j, axis, g, nh, col, p))
+    t_compiled = best(lambda: _affinity(i, j, axis, g, nh, col, p))
+    print(f"affinity, {m:,} edges of {n:,} voxels: numpy {t_numpy:.1f} ms, compiled {t_compiled:.1f} ms, "
+          f"same bits: {same}")
     idx = np.unique(rng.integers(0, 60, (200_000, 3)), axis=0)
     idx = idx[np.argsort(pack_keys(idx))]
     e_i, e_j, _ = neighbour_edges(idx)
@@ -49,8 +51,10 @@ def main() -> None:
     k = len(idx)
     same = all(np.array_equal(a.view(np.uint8), b.view(np.uint8))
                for a, b in zip(transition_matrix(k, e_i, e_j, w), transition_scipy(k, e_i, e_j, w)))
-    print(f"transition matrix, {e_i.size:,} edges of {k:,} voxels: scipy {best(lambda: transition_scipy(k, e_i, e_j, w)):.1f} ms, "
-          f"compiled {best(lambda: transition_matrix(k, e_i, e_j, w)):.1f} ms, same bits: {same}")
+    t_scipy = best(lambda: transition_scipy(k, e_i, e_j, w))
+    t_compiled = best(lambda: transition_matrix(k, e_i, e_j, w))
+    print(f"transition matrix, {e_i.size:,} edges of {k:,} voxels: scipy {t_scipy:.1f} ms, "
+          f"compiled {t_compiled:.1f} ms, same bits: {same}")
 
 
 if __name__ == "__main__":

@@ -24,7 +24,8 @@ import panovocc_cli.runtime as rt
 from panovocc_cli.io.poses import frame_poses
 from panovocc_cli.io.sequence import read_meta
 from panovocc_cli.mapping import Mapper
-from panovocc_cli.mapping.pipeline import SequenceFrames, _open_sequence, concurrent_kernels_safe, load_config, prefetched
+from panovocc_cli.mapping.pipeline import (SequenceFrames, _open_sequence, concurrent_kernels_safe, load_config,
+                                           prefetched)
 
 
 def two_at_once(m: Mapper, revisions) -> int:
@@ -33,10 +34,6 @@ def two_at_once(m: Mapper, revisions) -> int:
     deltas = ThreadPoolExecutor(2, thread_name_prefix="revise-delta")
     swapper = ThreadPoolExecutor(1, thread_name_prefix="revise")
     window, pending, count = deque(), None, 0
-
-    def revision(fid, T, frame, ahead):
-        job = m._revision(fid, T, frame, ahead)
-        return job
 
     def advance():
         nonlocal pending, count
@@ -53,7 +50,7 @@ def two_at_once(m: Mapper, revisions) -> int:
             while len(window) >= (3 if concurrent_kernels_safe() else 1):
                 advance()
             ahead = reader.submit(m._rpu.store.get, int(fid))
-            window.append(deltas.submit(revision, int(fid), T, frame, ahead))
+            window.append(deltas.submit(m._revision, int(fid), T, frame, ahead))
         while window:
             advance()
         if pending is not None:
@@ -91,7 +88,8 @@ def main() -> None:
             at = to
     for name, v in res.items():
         w, c = np.array(v).T * 1e3 / len(ids)
-        print(f"{name}: wall {np.round(w, 1).tolist()} ms a frame, median {np.median(w):.2f}; CPU median {np.median(c):.2f}")
+        print(f"{name}: wall {np.round(w, 1).tolist()} ms a frame, median {np.median(w):.2f}; "
+              f"CPU median {np.median(c):.2f}")
     m.close()
 
 

@@ -5,8 +5,9 @@ weights; :func:`frame_semantic_delta_numpy` is the plain-numpy chain ``erp_norma
 ``measurement_weights`` -> ``semantic_frame_delta`` that ``panovocc map`` ran before the step was
 compiled (``panovocc_cli.semantics.evidence.frame_semantic_delta``); :func:`simulate_logits_numpy` is
 the simulated segmenter in plain numpy (its fields, ellipses and boundary erosion as before they were
-compiled, with the seeded confidence model); :func:`affinity_numpy` and :func:`transition_scipy` are GSC's edge affinity and
-transition matrix as numpy and scipy made them before they were compiled (``panovocc_cli.semantics.gsc``). The tests compare each pair.
+compiled, with the seeded confidence model); :func:`affinity_numpy` and :func:`transition_scipy` are GSC's
+edge affinity and transition matrix as numpy and scipy made them before they were compiled
+(``panovocc_cli.semantics.gsc``). The tests compare each pair.
 """
 
 from __future__ import annotations

@@ -81,7 +81,9 @@ def transition_csr(n, i, j, w):
     (j, i); a row's degree is the float64 sum of its weights in that order (``np.bincount``'s), rounded to
     float32, and each entry is ``w / degree`` in float32. A row holds its entries by increasing column (scipy's
     canonical CSR, which its COO constructor makes), and its sum is ``csr.sum(axis=1)``'s: numpy's float32
-    ``add.reduceat`` of the row, its first entry plus the sum of the others in stored order. Returns (indptr, indices) int64, data float32, rowsum float32."""
+    ``add.reduceat`` of the row, its first entry plus the sum of the others in stored order (numpy sums pairwise
+    only from 9 entries on; a row of the 6-neighbour graph has at most 6). Returns (indptr, indices) int64, data
+    float32, rowsum float32."""
     m = i.size
     deg = np.zeros(n, np.float64)
     start = np.zeros(n + 1, np.int64)
@@ -119,8 +121,8 @@ def transition_csr(n, i, j, w):
                 b -= 1
             indices[b + 1] = c
             data[b + 1] = v
-        if start[r + 1] > start[r]:  # numpy's add.reduce: the first entry plus the sum of the rest (pairwise
-            s = np.float32(0.0)  # only from 9 entries on; a row has at most 6)
+        if start[r + 1] > start[r]:  # add.reduce's order: the first entry plus the sum of the rest
+            s = np.float32(0.0)
             for a in range(start[r] + 1, start[r + 1]):
                 s += data[a]
             rowsum[r] = data[start[r]] + s
