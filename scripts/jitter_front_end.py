@@ -10,11 +10,14 @@ four maps, all ``--segmenter none`` and scored against the scene's mesh ground t
   paper scores SLAM maps).
 
     python scripts/jitter_front_end.py W [--jitter t10mm.r0.1deg.s0] [--export "--resolve --spill 0.3"]
+                                         [--align se3-pose]
 
 W is a folder of ``python -m panovocc_cli.benchmark.jitter W ...`` (its sequences ``SCENE.clean`` /
 ``SCENE.realistic``, ``SCENE.gt.npz`` and the jittered poses); the results go to W/front_end/ (one folder a scene
 and depth) and a Markdown table to stdout and W/front_end/table.md. ``--export``: map options added to every map
-(the face resolution and spill, say). Nothing in W is changed.
+(the face resolution and spill, say). ``--align``: how ``placed`` fits the front end's poses to the jittered ones
+(``se3``, the default: Umeyama on the positions; ``se3-pose``: the whole poses, orientations too; its results go to
+W/front_end.se3-pose/). Nothing in W is changed.
 """
 
 from __future__ import annotations
@@ -52,9 +55,10 @@ def main() -> None:
     ap.add_argument("work", type=Path)
     ap.add_argument("--jitter", default="t10mm.r0.1deg.s0", help="the jittered poses' tag in W (SCENE.TAG.poses.txt)")
     ap.add_argument("--export", default="", help="map options added to every map")
+    ap.add_argument("--align", default="se3", choices=("se3", "se3-pose"), help="placed: --poses-align of the fit")
     a = ap.parse_args()
     w, extra = a.work, shlex.split(a.export)
-    out = w / "front_end"
+    out = w / ("front_end" if a.align == "se3" else f"front_end.{a.align}")
     out.mkdir(exist_ok=True)
     scenes = sorted(p.name[: -len(".gt.npz")] for p in w.glob("*.gt.npz"))
     if not scenes:
@@ -72,7 +76,8 @@ def main() -> None:
             d = out / f"{sc}.{depth}"
             true = _iou(_map(seq, d / "true", extra), gt)
             jittered = _iou(_map(seq, d / "jittered", ["--poses", jit, *extra]), gt)
-            placed = _iou(_map(seq, d / "placed", ["--poses", "slam", "--poses-align", "se3", "--poses-reference", jit,
+            placed = _iou(_map(seq, d / "placed", ["--poses", "slam", "--poses-align", a.align,
+                                                   "--poses-reference", jit,
                                                    *extra]), gt)
             est = d / "placed" / "poses.txt"
             _run(["traj", "eval", est, seq / "poses.txt", "--json", d / "ate.json", "--overwrite"])

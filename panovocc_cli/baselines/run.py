@@ -27,6 +27,7 @@ import numpy as np
 
 from ..config import DEFAULT_SEED, DEFAULT_VOXEL_SIZE, MAX_SEED, MAX_STRIDE, MAX_VOXEL_SIZE, option, validate_config
 from ..errors import PanovoccError
+from ..evaluation.trajectory import PLACEMENTS
 from ..geometry.cameras import TWELVE_PITCH_DEG
 from .single_pano import EMBODIEDOCC_BOX_M, VERTICAL
 
@@ -61,9 +62,9 @@ class BaselineConfig:
     out: Path = option(argument=True, metavar="OUT", help="Output folder: prediction.npz, baseline.json, "
                                                            "config.json (and streams/ or frames/).")
     poses: Path | None = option(None, help="Pose file (NICE-SLAM or TUM); default SEQ/poses.txt.")
-    poses_align: str = option("none", choices=("none", "se3", "sim3"),
-                              help="Align the --poses trajectory to SEQ/poses.txt first (Umeyama), as for map: "
-                                   "what the benchmark does with the SLAM front end's poses.")
+    poses_align: str = option("none", choices=PLACEMENTS,
+                              help="Align the --poses trajectory to SEQ/poses.txt first, as for map (se3: Umeyama, "
+                                   "what the benchmark does with the SLAM front end's poses; se3-pose: whole poses).")
     voxel_size: float = option(DEFAULT_VOXEL_SIZE, min=0, min_open=True, max=MAX_VOXEL_SIZE,
                                help="Voxel edge length h, metres.")
     max_range: float = option(12.0, min=0, min_open=True, help="Depths farther than this are ignored, metres.")

@@ -8,6 +8,11 @@ against evo's own Python API.
   reference ones by the least-squares rigid (``se3``) or similarity (``sim3``) transform of Umeyama
   (1991); ``none`` leaves them. As in evo, a Sim(3) alignment scales the estimate's translations and
   then applies the rigid part: ``T_aligned_i = [R | t] · [R_i | s t_i]``.
+* Placement (:func:`fit_poses`, ``se3-pose``; not evo's): the rigid motion fitted to whole poses, the
+  orientations as well as the positions, each weighted by its scatter about the fit. What places a map by a
+  reference trajectory with independent per-frame noise (``map --poses-align se3-pose``): a rotation
+  fitted to positions alone is only as good as σ_t / (the trajectory's extent · √n), which on a room-sized
+  path is several times what the orientations give (σ_r / √n).
 * ATE (:func:`ate_errors`): ``‖t_est_i − t_ref_i‖`` after alignment, metres.
 * RPE (:func:`rpe_errors`): for pairs ``(i, i + delta)`` of consecutive frames, the error pose
   ``E = (Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)`` (Q reference, P estimate); its translation norm in metres and its
@@ -27,6 +32,12 @@ from ..errors import PanovoccError
 
 ALIGNMENTS = ("se3", "sim3", "none")
 """Alignment of an estimated trajectory to its reference before ATE."""
+POSE_FIT = "se3-pose"
+"""The rigid fit of whole poses (:func:`fit_poses`): a placement, not one of evo's alignments."""
+PLACEMENTS = ("none", "se3", POSE_FIT, "sim3")
+"""How ``map --poses-align`` moves a pose file (or the front end's poses) onto a reference trajectory."""
+#: Floors of the fitted scatter (metres, radians): two trajectories that agree exactly still weigh both parts.
+_FIT_FLOOR_T, _FIT_FLOOR_R = 1e-6, 1e-6
 
 
 def umeyama(src, dst, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
@@ -70,6 +81,48 @@ def umeyama(src, dst, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray,
     return R, t, s
 
 
+def _nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation R maximising ``trace(R^T M)`` (Kabsch), (3, 3) float64."""
+    U, _, Vt = np.linalg.svd(M)
+    S = np.eye(3)
+    S[2, 2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    return U @ S @ Vt
+
+
+def fit_poses(T_est, T_ref, iterations: int = 5) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The rigid motion ``[R | t]`` with ``T_ref_i ≈ [R | t] · T_est_i``, fitted to whole poses.
+
+    Maximum likelihood under independent per-frame noise, isotropic in position (σ_t an axis) and in
+    rotation (σ_r an axis): ``R`` maximises ``trace(R^T M)``,
+    ``M = Σ q'_i p'_i^T / σ_t² + Σ R_ref_i R_est_i^T / (2 σ_r²)`` (p', q' the positions about their means; the
+    second sum is ``‖R R_est_i − R_ref_i‖_F² ≈ 2 θ_i²`` expanded), and ``t = q̄ − R p̄``. σ_t and σ_r are not
+    known: the fit starts from the orientations alone (defined for any trajectory, even one that stands still)
+    and re-estimates both from its residuals ``iterations`` times (σ_t² = Σ‖e_i‖² / 3n, σ_r² = Σ θ_i² / 3n,
+    floored at 1 µm and 1 µrad). The reference's
+    orientations must be the same camera's as the estimate's: a reference that holds positions only (orientations
+    all equal, say) is weighed down by its own scatter only when the estimate turns.
+
+    Returns
+    -------
+    R : (3, 3) float64; t : (3,) float64, metres; info : {"sigma_t_m", "sigma_r_deg"}, the last residual scatter
+    """
+    T_est, T_ref = _pair(T_est, T_ref)
+    n = len(T_est)
+    p, q = T_est[:, :3, 3], T_ref[:, :3, 3]
+    c_pos = (q - q.mean(0)).T @ (p - p.mean(0))
+    c_rot = np.einsum("nij,nkj->ik", T_ref[:, :3, :3], T_est[:, :3, :3])
+    w_pos, w_rot = 0.0, 1.0
+    for _ in range(max(int(iterations), 1)):
+        R = _nearest_rotation(w_pos * c_pos + w_rot * c_rot)
+        t = q.mean(0) - R @ p.mean(0)
+        e = p @ R.T + t - q
+        var_t = max(float(np.sum(e * e)) / (3 * n), _FIT_FLOOR_T ** 2)
+        theta = rotation_angle(R @ T_est[:, :3, :3] @ np.swapaxes(T_ref[:, :3, :3], 1, 2))
+        var_r = max(float(np.sum(theta * theta)) / (3 * n), _FIT_FLOOR_R ** 2)
+        w_pos, w_rot = 1.0 / var_t, 1.0 / (2.0 * var_r)
+    return R, t, {"sigma_t_m": float(np.sqrt(var_t)), "sigma_r_deg": float(np.degrees(np.sqrt(var_r)))}
+
+
 def apply_sim3(T_world_cam, R, t, s: float = 1.0) -> np.ndarray:
     """Poses (n, 4, 4) moved by the similarity ``(R, t, s)``: ``[R | t] · [R_i | s t_i]`` (float64)."""
     T = np.array(T_world_cam, np.float64, copy=True)
@@ -85,17 +138,20 @@ def align_trajectory(T_est, T_ref, mode: str = "se3") -> tuple[np.ndarray, np.nd
     Parameters
     ----------
     T_est, T_ref : (n, 4, 4) float, T_world_cam
-    mode : ``se3`` | ``sim3`` | ``none``
+    mode : ``se3`` | ``sim3`` | ``none`` | ``se3-pose`` (:func:`fit_poses`: whole poses, not positions alone)
 
     Returns
     -------
     T_aligned : (n, 4, 4) float64; R : (3, 3); t : (3,) metres; s : float (1 unless sim3)
     """
     T_est, T_ref = _pair(T_est, T_ref)
-    if mode not in ALIGNMENTS:
-        raise PanovoccError(f"alignment must be one of {', '.join(ALIGNMENTS)}, got {mode!r}")
+    if mode not in PLACEMENTS:
+        raise PanovoccError(f"alignment must be one of {', '.join(PLACEMENTS)}, got {mode!r}")
     if mode == "none":
         return T_est.copy(), np.eye(3), np.zeros(3), 1.0
+    if mode == POSE_FIT:
+        R, t, _ = fit_poses(T_est, T_ref)
+        return apply_sim3(T_est, R, t), R, t, 1.0
     R, t, s = umeyama(T_est[:, :3, 3], T_ref[:, :3, 3], with_scale=mode == "sim3")
     return apply_sim3(T_est, R, t, s), R, t, s
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..config import DEFAULT_SEED, MAX_SEED, MAX_STRIDE, option, typed_from_json
 from ..errors import PanovoccError
+from ..evaluation.trajectory import PLACEMENTS, POSE_FIT
 from ..geometry.lattice import key_reach, local_origin
 from ..semantics.gsc import GSCParams
 from ..semantics.params import EvidenceWeights
@@ -36,6 +37,7 @@ SEMANTIC_FORMAT = 4  # the first format whose semantic channels this panovocc re
 
 POSES_SLAM = "slam"  # --poses slam: poses estimated online by a front end the caller passes (slam/run.py)
 FIRST_POSE_REFERENCE = "reference"  # --first-pose reference: the reference trajectory's pose of the first frame
+RIGID = ("se3", POSE_FIT)  # the --poses-align modes that move a trajectory rigidly (--poses slam takes these)
 SLAM_PRESETS = ("default", "building")  # --slam-preset: the names of slam.tracker.PRESETS (tested equal)
 PLY_COLORS = ("class", "rgb", "height")
 
@@ -201,10 +203,12 @@ class MapConfig:
                                help="Pose file (NICE-SLAM, or TUM with timestamps matched to frame indices), or "
                                     "'slam' to estimate the poses online (SEQ/poses.txt is then never read); "
                                     "default SEQ/poses.txt.")
-    poses_align: str = option("none", choices=("none", "se3", "sim3"),
-                              help="Align the --poses file to a reference trajectory first (Umeyama): none | se3 | "
-                                   "sim3. With --poses slam: se3 fits the final poses to the reference and moves "
-                                   "every frame there (the map in the reference's world).")
+    poses_align: str = option("none", choices=PLACEMENTS,
+                              help="Align the --poses file to a reference trajectory first: none | se3 (Umeyama, "
+                                   "positions) | se3-pose (whole poses: orientations too, each weighted by its "
+                                   "scatter; for a reference with per-frame noise) | sim3. With --poses slam: se3 "
+                                   "or se3-pose fits the final poses to the reference and moves every frame there "
+                                   "(the map in the reference's world).")
     poses_reference: str | None = option(None, cli_type=Path, parse=str,
                                          help="Reference trajectory of --poses-align and of --first-pose reference; "
                                               "default SEQ/poses.txt.")

@@ -41,7 +41,7 @@ from ..io.ply import write_ply_points
 from ..io.poses import frame_poses, read_first_pose, write_poses
 from ..io.sequence import Sequence, read_meta
 from .ablation import CorrectionSchedule, check_resumable
-from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig,
+from .config import (FIRST_POSE_REFERENCE, PLY_COLORS, POSES_SLAM, RIGID, SEGMENTER_AUTO, SEGMENTER_NONE, MapConfig,
                      MapperConfig, ReviseConfig, SemanticParams, check_key_reach, frame_ids,
                      several_sequences)
 from .export import point_chunks
@@ -251,8 +251,9 @@ def run_poses(cfg: MapConfig) -> np.ndarray | None:
 
     ``--poses FILE``: one pose per frame (io/poses.py ``frame_poses``: NICE-SLAM line i = frame i, TUM
     timestamps matched to frame indices), aligned to ``poses_reference`` (default SEQ/poses.txt) by
-    ``poses_align`` (Umeyama se3/sim3). ``--poses slam``: placeholders, :func:`slam_first_poses` (the front
-    end places the frames; SEQ/poses.txt is never read unless ``--first-pose reference`` names it).
+    ``poses_align`` (Umeyama se3/sim3, or se3-pose: the whole poses). ``--poses slam``: placeholders,
+    :func:`slam_first_poses` (the front end places the frames; SEQ/poses.txt is never read unless ``--first-pose
+    reference`` names it).
     """
     meta = Path(cfg.seq) / "meta.json"
     if not meta.is_file():
@@ -290,7 +291,7 @@ def slam_first_poses(cfg: MapConfig, n: int) -> np.ndarray:
     reference's world, which the final fit then corrects by millimetres, so a reference far from the world
     origin keeps the map's keys in range); none: identity (the tracker then levels the first frame at the
     origin, :data:`~..slam.tracker.LEVEL_FIRST`)."""
-    if cfg.first_pose == FIRST_POSE_REFERENCE or (cfg.first_pose is None and cfg.poses_align == "se3"):
+    if cfg.first_pose == FIRST_POSE_REFERENCE or (cfg.first_pose is None and cfg.poses_align in RIGID):
         return frame_poses(cfg.reference_path(), n)
     if cfg.first_pose is None:
         return np.tile(np.eye(4), (n, 1, 1))
@@ -584,7 +585,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.first_pose is not None and cfg.poses != POSES_SLAM:
             raise PanovoccError("--first-pose sets the world of --poses slam; a pose file's world is its own (move it "
                                 "into a reference's with --poses-align se3)")
-        if cfg.poses == POSES_SLAM and cfg.poses_align == "sim3":
+        if cfg.poses == POSES_SLAM and cfg.poses_align not in ("none",) + RIGID:
             raise PanovoccError("--poses slam --poses-align sim3: the front end's poses are metric (they come from the "
                                 "depth), and a scale fitted to the reference would move the frames but not scale "
                                 "their depth; use --poses-align se3")

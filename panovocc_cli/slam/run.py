@@ -21,11 +21,12 @@ levelling on top: the pose already says where the camera looks and which way is 
 or the reference's world. With ``--poses-align se3`` (``MapConfig.poses_align``) the run starts as with
 ``--first-pose reference`` (the first placed frame at the reference's pose), and after the final refinement the
 placed frames' poses are fitted to the reference trajectory's (``--poses-reference``, default SEQ/poses.txt) by
-one rigid motion (Umeyama, SE(3), over every placed frame) and every placed frame is revised to its fitted pose:
+one rigid motion (Umeyama, SE(3), over every placed frame; ``--poses-align se3-pose``: fitted to the whole poses,
+orientations too, :func:`~..evaluation.trajectory.fit_poses`) and every placed frame is revised to its fitted pose:
 the map, ``poses.txt`` and ``trajectory.tum`` are in the reference's world, placed by the whole trajectory rather
 than by its first pose (what a capture whose own poses carry per-frame noise wants: docs/slam.md, "The front end
 placed by a noisy trajectory"). The sequence's own poses (SEQ/poses.txt) are never read, except as the default
-reference of ``--first-pose reference`` and ``--poses-align se3``.
+reference of ``--first-pose reference`` and ``--poses-align se3`` / ``se3-pose``.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, MapConfig, frame_ids
+from ..mapping.config import FIRST_POSE_REFERENCE, POSES_SLAM, RIGID, MapConfig, frame_ids
 from .tracker import PRESETS, SlamParams, Tracker
 
 SLAM_JSON = "slam.json"
@@ -52,10 +53,11 @@ class SlamPoses:
     """
 
     def __init__(self, params: SlamParams | None = None, first_pose: str | None = None, frames: str | None = None,
-                 align: bool = False):
+                 align: bool | str = False):
         self.params = params or SlamParams()
         self.first_pose = first_pose
-        self.align = bool(align)  # --poses-align se3: the sequence's placeholder poses are the reference's
+        self.align = bool(align)  # --poses-align se3 / se3-pose: the sequence's placeholder poses are the reference's
+        self.align_mode = align if isinstance(align, str) else "se3"  # how the final poses are fitted to it
         self.align_to: np.ndarray | None = None  # (n, 4, 4), the reference, once bound
         self.alignment = np.eye(4)  # the rigid motion applied to the tracker's poses (identity until the last frame)
         self.frames = frames  # the run's --frames (its last frame ends the sequence: the final refinement)
@@ -88,15 +90,16 @@ class SlamPoses:
 
     def _aligned(self, fid: int, T) -> tuple:
         """After the final refinement: the rigid motion that fits the placed frames' final poses to ``align_to``'s
-        (:func:`~..evaluation.trajectory.align_trajectory`, SE(3)), kept in :attr:`alignment`; returns the last
-        frame's pose and every other placed frame's fitted pose as revisions (each placed frame moves)."""
+        (:func:`~..evaluation.trajectory.align_trajectory`, SE(3) by :attr:`align_mode`), kept in
+        :attr:`alignment`; returns the last frame's pose and every other placed frame's fitted pose as revisions
+        (each placed frame moves)."""
         from ..evaluation.trajectory import align_trajectory
 
         committed = self.tracker.committed()
         if not committed:
             return T, []
         ids = sorted(committed)
-        _, R, t, _ = align_trajectory(np.stack([committed[i] for i in ids]), self.align_to[ids], "se3")
+        _, R, t, _ = align_trajectory(np.stack([committed[i] for i in ids]), self.align_to[ids], self.align_mode)
         self.alignment = np.eye(4)
         self.alignment[:3, :3], self.alignment[:3, 3] = R, t
         moved = {i: self.alignment @ committed[i] for i in ids}
@@ -164,7 +167,7 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     if cfg.heading_prior:  # --heading-prior
         params = dataclasses.replace(params or SlamParams(), heading_prior=True)
     source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames,
-                       align=cfg.poses_align == "se3" and cfg.first_pose is None)
+                       align=cfg.poses_align if cfg.poses_align in RIGID and cfg.first_pose is None else False)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)
     summary["slam"] = _write_slam_outputs(
@@ -181,7 +184,7 @@ def world_of(tracker: Tracker, first_pose: str | None, aligned_to: str | None = 
     for the levelled first frame), ``first_frame`` (the first placed frame, None when none was) and
     ``T_world_first`` (its pose, 4 rows of 4; the pose graph keeps it fixed) and a sentence ``frame``."""
     if aligned_to is not None:
-        words = f"the reference trajectory's world ({aligned_to}): the final poses fitted to it (--poses-align se3)"
+        words = f"the reference trajectory's world ({aligned_to}): the final poses fitted to it (--poses-align)"
     elif first_pose is None:
         words = "the first placed frame's camera, levelled (world +Z = its up), at the origin"
     elif first_pose == FIRST_POSE_REFERENCE:
