@@ -201,9 +201,11 @@ def test_bad_inputs_write_nothing(room, tmp_path, cli, argv, expect, monkeypatch
     assert sorted(p.name for p in tmp_path.iterdir()) == ["g.npz"]
 
 
-def test_poses_align_undoes_a_rigid_motion_of_the_trajectory(room, tmp_path, cli):
-    """--poses FILE --poses-align se3 (the benchmark's SLAM rows): a trajectory given in another world frame
-    (the true poses moved rigidly) maps to the same grid as the true poses; without alignment it does not."""
+@pytest.mark.parametrize("fit", ["se3", "se3-pose"])
+def test_poses_align_undoes_a_rigid_motion_of_the_trajectory(room, tmp_path, cli, fit):
+    """--poses FILE --poses-align se3 (the benchmark's SLAM rows) or se3-pose (the whole poses): a trajectory given
+    in another world frame (the true poses moved rigidly) maps to the same grid as the true poses; without alignment
+    it does not."""
     from panovocc_cli.io.poses import write_poses
     from panovocc_cli.io.sequence import Sequence
 
@@ -214,7 +216,7 @@ def test_poses_align_undoes_a_rigid_motion_of_the_trajectory(room, tmp_path, cli
     common = ["--quiet", "--segmenter", "none"]
     assert cli(["baselines", "run", "forward-only", room, tmp_path / "ref"] + common)[0] == 0
     code, _, err = cli(["baselines", "run", "forward-only", room, tmp_path / "al", "--poses", moved,
-                        "--poses-align", "se3"] + common)
+                        "--poses-align", fit] + common)
     assert code == 0, err
     assert cli(["baselines", "run", "forward-only", room, tmp_path / "raw", "--poses", moved] + common)[0] == 0
     ref, al, raw = (read_grid(tmp_path / n / "prediction.npz") for n in ("ref", "al", "raw"))
