@@ -96,11 +96,12 @@ def fit_poses(T_est, T_ref, iterations: int = 5) -> tuple[np.ndarray, np.ndarray
     rotation (σ_r an axis): ``R`` maximises ``trace(R^T M)``,
     ``M = Σ q'_i p'_i^T / σ_t² + Σ R_ref_i R_est_i^T / (2 σ_r²)`` (p', q' the positions about their means; the
     second sum is ``‖R R_est_i − R_ref_i‖_F² ≈ 2 θ_i²`` expanded), and ``t = q̄ − R p̄``. σ_t and σ_r are not
-    known: the fit starts from the orientations alone (defined for any trajectory, even one that stands still)
-    and re-estimates both from its residuals ``iterations`` times (σ_t² = Σ‖e_i‖² / 3n, σ_r² = Σ θ_i² / 3n,
-    floored at 1 µm and 1 µrad). The reference's
-    orientations must be the same camera's as the estimate's: a reference that holds positions only (orientations
-    all equal, say) is weighed down by its own scatter only when the estimate turns.
+    known: the fit starts from the positions alone (Umeyama's rotation; from the orientations alone where the
+    positions do not fix one, a camera that stands still or moves along a line) and re-estimates both from its
+    residuals ``iterations`` times (σ_t² = Σ‖e_i‖² / 3n, σ_r² = Σ θ_i² / 3n, floored at 1 µm and 1 µrad). So
+    orientations that disagree with the positions by more than their noise (a reference that holds positions
+    only, its orientations all equal) weigh next to nothing, and the fit is Umeyama's; where the positions fix no
+    rotation, the reference's orientations must be the same camera's as the estimate's.
 
     Returns
     -------
@@ -111,7 +112,8 @@ def fit_poses(T_est, T_ref, iterations: int = 5) -> tuple[np.ndarray, np.ndarray
     p, q = T_est[:, :3, 3], T_ref[:, :3, 3]
     c_pos = (q - q.mean(0)).T @ (p - p.mean(0))
     c_rot = np.einsum("nij,nkj->ik", T_ref[:, :3, :3], T_est[:, :3, :3])
-    w_pos, w_rot = 0.0, 1.0
+    sv = np.linalg.svd(c_pos, compute_uv=False)
+    w_pos, w_rot = (1.0, 0.0) if sv[1] > 1e-9 * max(sv[0], 1e-300) else (0.0, 1.0)
     for _ in range(max(int(iterations), 1)):
         R = _nearest_rotation(w_pos * c_pos + w_rot * c_rot)
         t = q.mean(0) - R @ p.mean(0)

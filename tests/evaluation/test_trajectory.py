@@ -292,3 +292,19 @@ def test_map_poses_align_se3_pose(tmp_path):
     got = run_poses(MapConfig(seq=str(seq), out=str(tmp_path / "m"), poses=str(tmp_path / "est.txt"),
                               poses_align="se3-pose"))
     assert np.allclose(got, T, atol=1e-9)
+
+
+def test_fit_poses_weighs_down_orientations_that_disagree_with_the_positions():
+    """A reference that holds positions only (every orientation the identity, as a GNSS track written as TUM):
+    its orientations disagree with the turning estimate by tens of degrees, so they weigh nothing and the fit is
+    Umeyama's, not a turn towards the identity."""
+    from panovocc_cli.evaluation.trajectory import fit_poses
+    from panovocc_cli.geometry.drift import jitter_trajectory
+
+    T = _room_walk()
+    ref = jitter_trajectory(T, trans_m=0.01, seed=3)
+    ref[:, :3, :3] = np.eye(3)
+    R, t, info = fit_poses(T, ref)
+    R_u, t_u, _ = umeyama(T[:, :3, 3], ref[:, :3, 3])
+    assert np.degrees(rotation_angle(R.T @ R_u)) < 0.01 and np.abs(t - t_u).max() < 1e-3
+    assert info["sigma_r_deg"] > 10
