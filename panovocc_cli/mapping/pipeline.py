@@ -588,7 +588,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.poses == POSES_SLAM and cfg.poses_align not in ("none",) + RIGID:
             raise PanovoccError("--poses slam --poses-align sim3: the front end's poses are metric (they come from the "
                                 "depth), and a scale fitted to the reference would move the frames but not scale "
-                                "their depth; use --poses-align se3")
+                                "their depth; use --poses-align se3 or se3-pose")
         if cfg.poses == POSES_SLAM and cfg.poses_align != "none" and cfg.first_pose is not None:
             raise PanovoccError("--first-pose and --poses-align both set the world of --poses slam: give one")
         if cfg.poses == POSES_SLAM and cfg.poses_align == "none" and (
