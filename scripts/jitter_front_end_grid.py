@@ -20,24 +20,9 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
-import subprocess
-import sys
 from pathlib import Path
 
-PANOVOCC = [sys.executable, "-m", "panovocc_cli"]
-
-
-def _run(args: list) -> str:
-    r = subprocess.run(PANOVOCC + [str(a) for a in args], capture_output=True, text=True)
-    if r.returncode != 0:
-        last = (r.stderr.strip().splitlines() or ["failed"])[-1]
-        raise SystemExit(f"panovocc {' '.join(map(str, args))}: {last}")
-    return r.stdout
-
-
-def _iou(pred: Path, gt: Path) -> float:
-    return float(json.loads(_run(["eval", pred, gt, "--json"]))["iou"])
+from jitter_front_end import _iou, _map, _run  # scripts/: the same panovocc calls
 
 
 def main() -> None:
@@ -65,12 +50,8 @@ def main() -> None:
                 if not jit.is_file():
                     _run(["traj", "perturb", seq / "poses.txt", jit, "--jitter", t, "--rot-jitter-deg", r,
                           "--seed", a.seed])
-                out = run / "grid" / tag
-                if not (out / "prediction.npz").is_file():
-                    _run(["map", seq, out, "--poses", run / "placed" / "poses.txt", "--poses-align", a.align,
-                          "--poses-reference", jit, "--segmenter", "none", "--checkpoint-every", "0", "--quiet",
-                          "--overwrite"])
-                iou = _iou(out / "prediction.npz", gt)
+                iou = _iou(_map(seq, run / "grid" / tag, ["--poses", run / "placed" / "poses.txt", "--poses-align",
+                                                          a.align, "--poses-reference", jit]), gt)
                 rows.append({"scene": scene, "depth": depth, "sigma_t_mm": round(t * 1000, 3), "sigma_r_deg": r,
                              "iou": round(iou, 2), "loss": round(true - iou, 2)})
                 print(f"{scene} {depth} {t * 1000:g} mm {r:g} deg: {iou:.2f} ({iou - true:+.2f})", flush=True)

@@ -23,28 +23,11 @@ W/placement/table.md.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
-
-PANOVOCC = [sys.executable, "-m", "panovocc_cli"]
-
-
-def _run(args: list) -> str:
-    r = subprocess.run(PANOVOCC + [str(a) for a in args], capture_output=True, text=True)
-    if r.returncode != 0:
-        last = (r.stderr.strip().splitlines() or ["failed"])[-1]
-        raise SystemExit(f"panovocc {' '.join(map(str, args))}: {last}")
-    return r.stdout
-
-
-def _iou(seq: Path, out: Path, gt: Path, extra: list) -> float:
-    if not (out / "prediction.npz").is_file():
-        _run(["map", seq, out, "--segmenter", "none", "--checkpoint-every", "0", "--quiet", "--overwrite", *extra])
-    return float(json.loads(_run(["eval", out / "prediction.npz", gt, "--json"]))["iou"])
+from jitter_front_end import _iou, _map, _run  # scripts/: the same panovocc calls
 
 
 def _offset(map_dir: Path, seq: Path) -> tuple[float, float]:
@@ -83,7 +66,7 @@ def main() -> None:
             if not (seq / "meta.json").is_file():
                 continue
             d = out / f"{sc}.{depth}"
-            true = _iou(seq, d / "true", gt, [])
+            true = _iou(_map(seq, d / "true", []), gt)
             for fit in ("se3", "se3-pose"):
                 cells, losses = [], []
                 for s in seeds:
@@ -92,8 +75,8 @@ def main() -> None:
                         _run(["traj", "perturb", seq / "poses.txt", jit, "--jitter", t, "--rot-jitter-deg", r,
                               "--seed", s])
                     m = d / f"{fit}.s{s}"
-                    iou = _iou(seq, m, gt, ["--poses", seq / "poses.txt", "--poses-align", fit, "--poses-reference",
-                                            jit])
+                    iou = _iou(_map(seq, m, ["--poses", seq / "poses.txt", "--poses-align", fit,
+                                             "--poses-reference", jit]), gt)
                     mm, deg = _offset(m, seq)
                     losses.append(true - iou)
                     cells.append(f"{true - iou:.2f} ({mm:.1f}, {deg:.3f})")
