@@ -12,8 +12,9 @@ others are these re-placements (the same poses moved by another fit, not another
 
     python scripts/jitter_front_end_grid.py W [--align se3-pose] [--grid 0,0.005,0.01,0.02:0,0.05,0.1,0.2] [--seed 0]
 
-Writes W/front_end[.FIT]/grid.csv (scene, depth, sigma_t_mm, sigma_r_deg, iou, loss) and prints, per cell, how
-many of the scene x depth pairs lose at most 2 points and the largest loss (Markdown, also in grid.md).
+Writes W/front_end[.FIT]/grid.sS.csv (scene, depth, sigma_t_mm, sigma_r_deg, iou, loss; S the jitter seed) and
+prints, per cell, how many of the scene x depth pairs lose at most 2 points and the largest loss (Markdown, also in
+grid.sS.md).
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ def main() -> None:
                 rows.append({"scene": scene, "depth": depth, "sigma_t_mm": round(t * 1000, 3), "sigma_r_deg": r,
                              "iou": round(iou, 2), "loss": round(true - iou, 2)})
                 print(f"{scene} {depth} {t * 1000:g} mm {r:g} deg: {iou:.2f} ({iou - true:+.2f})", flush=True)
-    with open(fe / "grid.csv", "w", newline="") as f:
+    with open(fe / f"grid.s{a.seed}.csv", "w", newline="") as f:
         wr = csv.DictWriter(f, fieldnames=list(rows[0]))
         wr.writeheader()
         wr.writerows(rows)
@@ -67,7 +68,7 @@ def main() -> None:
             losses = [x["loss"] for x in rows if x["sigma_t_mm"] == round(t * 1000, 3) and x["sigma_r_deg"] == r]
             cells.append(f"{sum(v <= 2.0 for v in losses)}/{n} ({max(losses):.2f})")
         lines.append(f"| {t * 1000:g} mm | " + " | ".join(cells) + " |")
-    (fe / "grid.md").write_text("\n".join(lines) + "\n")
+    (fe / f"grid.s{a.seed}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
