@@ -50,6 +50,17 @@ def _map(seq: Path, out: Path, extra: list) -> Path:
     return out / "prediction.npz"
 
 
+def bench_runs(w: Path):
+    """(scene, depth, sequence, ground truth) of every scene and depth a ``benchmark.jitter`` folder ``w`` holds."""
+    scenes = sorted(p.name[: -len(".gt.npz")] for p in w.glob("*.gt.npz"))
+    if not scenes:
+        raise SystemExit(f"{w}: no SCENE.gt.npz (a benchmark.jitter folder was expected)")
+    for sc in scenes:
+        for depth in ("clean", "realistic"):
+            if (w / f"{sc}.{depth}" / "meta.json").is_file():
+                yield sc, depth, w / f"{sc}.{depth}", w / f"{sc}.gt.npz"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("work", type=Path)
@@ -60,33 +71,25 @@ def main() -> None:
     w, extra = a.work, shlex.split(a.export)
     out = w / ("front_end" if a.align == "se3" else f"front_end.{a.align}")
     out.mkdir(exist_ok=True)
-    scenes = sorted(p.name[: -len(".gt.npz")] for p in w.glob("*.gt.npz"))
-    if not scenes:
-        raise SystemExit(f"{w}: no SCENE.gt.npz (a benchmark.jitter folder was expected)")
     lines = ["| scene | depth | ATE (mm) | true poses | jittered | front end, placed by the jittered | front end, "
              "aligned to the true |", "|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
-    for sc in scenes:
+    for sc, depth, seq, gt in bench_runs(w):
         jit = w / f"{sc}.{a.jitter}.poses.txt"
-        gt = w / f"{sc}.gt.npz"
-        for depth in ("clean", "realistic"):
-            seq = w / f"{sc}.{depth}"
-            if not (seq / "meta.json").is_file():
-                continue
-            d = out / f"{sc}.{depth}"
-            true = _iou(_map(seq, d / "true", extra), gt)
-            jittered = _iou(_map(seq, d / "jittered", ["--poses", jit, *extra]), gt)
-            placed = _iou(_map(seq, d / "placed", ["--poses", "slam", "--poses-align", a.align,
-                                                   "--poses-reference", jit,
-                                                   *extra]), gt)
-            est = d / "placed" / "poses.txt"
-            _run(["traj", "eval", est, seq / "poses.txt", "--json", d / "ate.json", "--overwrite"])
-            ate = 1e3 * json.loads((d / "ate.json").read_text())["ate_m"]["rmse"]
-            aligned = _iou(_map(seq, d / "aligned", ["--poses", est, "--poses-align", "se3", *extra]), gt)
-            row = (f"| {sc} | {depth} | {ate:.2f} | {true:.2f} | {jittered:.2f} ({jittered - true:+.2f}) | "
-                   f"{placed:.2f} ({placed - true:+.2f}) | {aligned:.2f} ({aligned - true:+.2f}) |")
-            lines.append(row)
-            print(row, flush=True)
+        d = out / f"{sc}.{depth}"
+        true = _iou(_map(seq, d / "true", extra), gt)
+        jittered = _iou(_map(seq, d / "jittered", ["--poses", jit, *extra]), gt)
+        placed = _iou(_map(seq, d / "placed", ["--poses", "slam", "--poses-align", a.align,
+                                               "--poses-reference", jit,
+                                               *extra]), gt)
+        est = d / "placed" / "poses.txt"
+        _run(["traj", "eval", est, seq / "poses.txt", "--json", d / "ate.json", "--overwrite"])
+        ate = 1e3 * json.loads((d / "ate.json").read_text())["ate_m"]["rmse"]
+        aligned = _iou(_map(seq, d / "aligned", ["--poses", est, "--poses-align", "se3", *extra]), gt)
+        row = (f"| {sc} | {depth} | {ate:.2f} | {true:.2f} | {jittered:.2f} ({jittered - true:+.2f}) | "
+               f"{placed:.2f} ({placed - true:+.2f}) | {aligned:.2f} ({aligned - true:+.2f}) |")
+        lines.append(row)
+        print(row, flush=True)
     (out / "table.md").write_text("\n".join(lines) + "\n")
 
 

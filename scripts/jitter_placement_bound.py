@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from jitter_front_end import _iou, _map, _run  # scripts/: the same panovocc calls
+from jitter_front_end import _iou, _map, _run, bench_runs  # scripts/: the same panovocc calls
 
 
 def _offset(map_dir: Path, seq: Path) -> tuple[float, float]:
@@ -52,37 +52,29 @@ def main() -> None:
     seeds = [int(s) for s in a.seeds.split(",")]
     out = w / "placement"
     out.mkdir(exist_ok=True)
-    scenes = sorted(p.name[: -len(".gt.npz")] for p in w.glob("*.gt.npz"))
-    if not scenes:
-        raise SystemExit(f"{w}: no SCENE.gt.npz (a benchmark.jitter folder was expected)")
     head = (["scene", "depth", "fit", "true poses"] + [f"seed {s}: loss (offset mm, deg)" for s in seeds]
             + ["largest loss"])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     print("\n".join(lines), flush=True)
-    for sc in scenes:
-        gt = w / f"{sc}.gt.npz"
-        for depth in ("clean", "realistic"):
-            seq = w / f"{sc}.{depth}"
-            if not (seq / "meta.json").is_file():
-                continue
-            d = out / f"{sc}.{depth}"
-            true = _iou(_map(seq, d / "true", []), gt)
-            for fit in ("se3", "se3-pose"):
-                cells, losses = [], []
-                for s in seeds:
-                    jit = w / f"{sc}.t{t * 1000:g}mm.r{r:g}deg.s{s}.poses.txt"
-                    if not jit.is_file():
-                        _run(["traj", "perturb", seq / "poses.txt", jit, "--jitter", t, "--rot-jitter-deg", r,
-                              "--seed", s])
-                    m = d / f"{fit}.s{s}"
-                    iou = _iou(_map(seq, m, ["--poses", seq / "poses.txt", "--poses-align", fit,
-                                             "--poses-reference", jit]), gt)
-                    mm, deg = _offset(m, seq)
-                    losses.append(true - iou)
-                    cells.append(f"{true - iou:.2f} ({mm:.1f}, {deg:.3f})")
-                row = f"| {sc} | {depth} | {fit} | {true:.2f} | " + " | ".join(cells) + f" | {max(losses):.2f} |"
-                lines.append(row)
-                print(row, flush=True)
+    for sc, depth, seq, gt in bench_runs(w):
+        d = out / f"{sc}.{depth}"
+        true = _iou(_map(seq, d / "true", []), gt)
+        for fit in ("se3", "se3-pose"):
+            cells, losses = [], []
+            for s in seeds:
+                jit = w / f"{sc}.t{t * 1000:g}mm.r{r:g}deg.s{s}.poses.txt"
+                if not jit.is_file():
+                    _run(["traj", "perturb", seq / "poses.txt", jit, "--jitter", t, "--rot-jitter-deg", r,
+                          "--seed", s])
+                m = d / f"{fit}.s{s}"
+                iou = _iou(_map(seq, m, ["--poses", seq / "poses.txt", "--poses-align", fit,
+                                         "--poses-reference", jit]), gt)
+                mm, deg = _offset(m, seq)
+                losses.append(true - iou)
+                cells.append(f"{true - iou:.2f} ({mm:.1f}, {deg:.3f})")
+            row = f"| {sc} | {depth} | {fit} | {true:.2f} | " + " | ".join(cells) + f" | {max(losses):.2f} |"
+            lines.append(row)
+            print(row, flush=True)
     (out / "table.md").write_text("\n".join(lines) + "\n")
 
 
