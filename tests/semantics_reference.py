@@ -184,8 +184,6 @@ def frame_semantic_delta_numpy(depth: np.ndarray, rgb: np.ndarray, obs, T_world_
     -------
     keys, channels : as :func:`semantic_frame_delta`
     """
-    from panovocc_cli.semantics.observation import measurement
-
     depth = np.asarray(depth, dtype=np.float64)
     h, w = depth.shape
     s = weights.stride  # measurements: pixels (s i, s j), each weighing s^2
@@ -386,3 +384,20 @@ def transition_scipy(n: int, i, j, w):
     deg = np.bincount(rows, weights=vals, minlength=n).astype(np.float32)
     W = sp.csr_matrix(((vals / deg[rows]).astype(np.float32), (rows, cols)), shape=(n, n))
     return W.indptr, W.indices, W.data, np.asarray(W.sum(axis=1)).ravel().astype(np.float32)
+
+
+def measurement(obs) -> tuple[np.ndarray, np.ndarray]:
+    """What the evidence fuses, as frame arrays (the package makes it per pixel: ``evidence._pixel_measurement``):
+    per pixel the confidence and the two classes' shares.
+
+    Returns
+    -------
+    confidence : (h, w) float32, ``q1 / 15`` (0: the pixel carries no evidence)
+    share : (h, w, 2) float32, ``(q1, q2) / (q1 + q2)`` (0 where ``q1 + q2 = 0``)
+    """
+    from panovocc_cli.semantics.observation import Q_LEVELS
+
+    q = obs.q.astype(np.float32)
+    tot = q[..., 0] + q[..., 1]
+    share = np.where(tot[..., None] > 0, q / np.where(tot > 0, tot, 1)[..., None], 0).astype(np.float32)
+    return (q[..., 0] / np.float32(Q_LEVELS)).astype(np.float32), share

@@ -138,10 +138,10 @@ def _slot(key, bits):
 
 @nb.njit(cache=True, inline="always")
 def _pixel_measurement(q1, q2):
-    """One pixel's confidence and its two classes' shares from its levels (q1, q2), float32: the expressions of
-    :func:`.observation.measurement` (``q1 / Q_LEVELS``, ``(q1, q2) / (q1 + q2)``, 0 where the sum is 0), so the
-    values are the same bit for bit (tests/semantics/test_semantics_observation.py), made where the sums read
-    them instead of as two arrays of the frame (1.1 ms a frame at 1024x512, stride 2)."""
+    """One pixel's confidence and its two classes' shares from its levels (q1, q2), float32: ``q1 / Q_LEVELS`` and
+    ``(q1, q2) / (q1 + q2)``, 0 where the sum is 0 (the observation's definition, .observation), the same bits
+    as the frame arrays of tests/semantics_reference.py's ``measurement``
+    (tests/semantics/test_semantics_observation.py), made where the sums read them instead of as two arrays of the frame (1.1 ms a frame at 1024x512, stride 2)."""
     f1, f2 = np.float32(q1), np.float32(q2)
     tot = f1 + f2
     if tot > 0:

@@ -13,7 +13,7 @@ Per pixel, from ``p = softmax(logits)``:
   index first);
 * ``q`` : ``(round(15 p_c1), round(15 p_c2))``, uint8 in 0..15.
 
-What the evidence uses (:func:`measurement`): the confidence ``q1 / 15`` (the paper's ``c``, the maximum
+What the evidence uses (:func:`.evidence._pixel_measurement`, per pixel where the sums read it): the confidence ``q1 / 15`` (the paper's ``c``, the maximum
 class probability) and the distribution ``(q1, q2) / (q1 + q2)`` on ``(c1, c2)`` (zero elsewhere). The
 third and later classes hold 11 % of the probability mass on average with the simulated segmenter at
 1024x512 (top-1 72 %, top-2 84 %); dropping them changes a voxel's fused distribution little, because a
@@ -162,16 +162,3 @@ def _observe(logits, classes, q, levels):
                 classes[v, u, 1] = i2
                 q[v, u, 1] = np.uint8(np.rint(levels * e2 / tot))
 
-
-def measurement(obs: SemanticObservation) -> tuple[np.ndarray, np.ndarray]:
-    """What the evidence fuses: per pixel the confidence and the two classes' shares.
-
-    Returns
-    -------
-    confidence : (h, w) float32, ``q1 / 15`` (0: the pixel carries no evidence)
-    share : (h, w, 2) float32, ``(q1, q2) / (q1 + q2)`` (0 where ``q1 + q2 = 0``)
-    """
-    q = obs.q.astype(np.float32)
-    tot = q[..., 0] + q[..., 1]
-    share = np.where(tot[..., None] > 0, q / np.where(tot > 0, tot, 1)[..., None], 0).astype(np.float32)
-    return (q[..., 0] / np.float32(Q_LEVELS)).astype(np.float32), share

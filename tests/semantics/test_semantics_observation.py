@@ -4,11 +4,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from semantics_reference import softmax
+from semantics_reference import measurement, softmax
 
 from panovocc_cli.errors import PanovoccError
 from panovocc_cli.mapping.contributors import D_STEPS, S_STEPS, distribution_steps, quantize_semantic_delta
-from panovocc_cli.semantics.observation import Q_LEVELS, SemanticObservation, measurement, observe
+from panovocc_cli.semantics.observation import Q_LEVELS, SemanticObservation, observe
 
 
 def test_observation_is_the_top_two_softmax_in_fifteenths():
