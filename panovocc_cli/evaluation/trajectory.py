@@ -97,11 +97,12 @@ def fit_poses(T_est, T_ref, iterations: int = 5) -> tuple[np.ndarray, np.ndarray
     ``M = Σ q'_i p'_i^T / σ_t² + Σ R_ref_i R_est_i^T / (2 σ_r²)`` (p', q' the positions about their means; the
     second sum is ``‖R R_est_i − R_ref_i‖_F² ≈ 2 θ_i²`` expanded), and ``t = q̄ − R p̄``. σ_t and σ_r are not
     known: the fit starts from the positions alone (Umeyama's rotation; from the orientations alone where the
-    positions do not fix one, a camera that stands still or moves along a line) and re-estimates both from its
-    residuals ``iterations`` times (σ_t² = Σ‖e_i‖² / 3n, σ_r² = Σ θ_i² / 3n, floored at 1 µm and 1 µrad). So
-    orientations that disagree with the positions by more than their noise (a reference that holds positions
-    only, its orientations all equal) weigh next to nothing, and the fit is Umeyama's; where the positions fix no
-    rotation, the reference's orientations must be the same camera's as the estimate's.
+    positions do not fix one and Umeyama refuses them, a camera that stands still or moves along a line) and
+    refits with both weighted by its residuals' scatter, ``iterations`` passes in all (σ_t² = Σ‖e_i‖² / 3n,
+    σ_r² = Σ θ_i² / 3n, floored at 1 µm and 1 µrad). So orientations that disagree with the positions by more
+    than their noise (a reference that holds positions only, its orientations all equal) weigh next to nothing,
+    and the fit is Umeyama's; where the positions fix no rotation, the reference's orientations must be the same
+    camera's as the estimate's.
 
     Returns
     -------
@@ -112,16 +113,22 @@ def fit_poses(T_est, T_ref, iterations: int = 5) -> tuple[np.ndarray, np.ndarray
     p, q = T_est[:, :3, 3], T_ref[:, :3, 3]
     c_pos = (q - q.mean(0)).T @ (p - p.mean(0))
     c_rot = np.einsum("nij,nkj->ik", T_ref[:, :3, :3], T_est[:, :3, :3])
-    sv = np.linalg.svd(c_pos, compute_uv=False)
-    w_pos, w_rot = (1.0, 0.0) if sv[1] > 1e-9 * max(sv[0], 1e-300) else (0.0, 1.0)
-    for _ in range(max(int(iterations), 1)):
-        R = _nearest_rotation(w_pos * c_pos + w_rot * c_rot)
+
+    def scatter(R):  # the translation that goes with R, and the residuals' variance an axis
         t = q.mean(0) - R @ p.mean(0)
         e = p @ R.T + t - q
-        var_t = max(float(np.sum(e * e)) / (3 * n), _FIT_FLOOR_T ** 2)
         theta = rotation_angle(R @ T_est[:, :3, :3] @ np.swapaxes(T_ref[:, :3, :3], 1, 2))
-        var_r = max(float(np.sum(theta * theta)) / (3 * n), _FIT_FLOOR_R ** 2)
-        w_pos, w_rot = 1.0 / var_t, 1.0 / (2.0 * var_r)
+        return (t, max(float(np.sum(e * e)) / (3 * n), _FIT_FLOOR_T ** 2),
+                max(float(np.sum(theta * theta)) / (3 * n), _FIT_FLOOR_R ** 2))
+
+    try:
+        R = umeyama(p, q)[0]
+    except PanovoccError:  # the positions fix no rotation (Umeyama refuses them): start from the orientations
+        R = _nearest_rotation(c_rot)
+    for _ in range(max(int(iterations), 1) - 1):
+        _, var_t, var_r = scatter(R)
+        R = _nearest_rotation(c_pos / var_t + c_rot / (2.0 * var_r))
+    t, var_t, var_r = scatter(R)
     return R, t, {"sigma_t_m": float(np.sqrt(var_t)), "sigma_r_deg": float(np.degrees(np.sqrt(var_r)))}
 
 
