@@ -585,7 +585,7 @@ def _run_map(cfg, resume_out, overwrite, progress, stop_after, held: contextlib.
         if cfg.first_pose is not None and cfg.poses != POSES_SLAM:
             raise PanovoccError("--first-pose sets the world of --poses slam; a pose file's world is its own (move it "
                                 "into a reference's with --poses-align se3)")
-        if cfg.poses == POSES_SLAM and cfg.poses_align not in ("none",) + RIGID:
+        if cfg.poses == POSES_SLAM and cfg.poses_align == "sim3":
             raise PanovoccError("--poses slam --poses-align sim3: the front end's poses are metric (they come from the "
                                 "depth), and a scale fitted to the reference would move the frames but not scale "
                                 "their depth; use --poses-align se3 or se3-pose")

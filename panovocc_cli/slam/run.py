@@ -53,11 +53,12 @@ class SlamPoses:
     """
 
     def __init__(self, params: SlamParams | None = None, first_pose: str | None = None, frames: str | None = None,
-                 align: bool | str = False):
+                 align: str | None = None):
         self.params = params or SlamParams()
         self.first_pose = first_pose
-        self.align = bool(align)  # --poses-align se3 / se3-pose: the sequence's placeholder poses are the reference's
-        self.align_mode = align if isinstance(align, str) else "se3"  # how the final poses are fitted to it
+        # --poses-align se3 / se3-pose: how the final poses are fitted to the reference (the sequence's placeholder
+        # poses are the reference's); None: no fit
+        self.align = align
         self.align_to: np.ndarray | None = None  # (n, 4, 4), the reference, once bound
         self.alignment = np.eye(4)  # the rigid motion applied to the tracker's poses (identity until the last frame)
         self.frames = frames  # the run's --frames (its last frame ends the sequence: the final refinement)
@@ -69,10 +70,10 @@ class SlamPoses:
 
     def __call__(self, seq_or_index, frame=None):
         if frame is None:  # bind to a sequence
-            anchored = self.first_pose is not None or self.align  # the placeholders hold a world to start in
+            anchored = self.first_pose is not None or self.align is not None  # the placeholders hold a world
             self.tracker = Tracker(seq_or_index.meta.width, seq_or_index.meta.height, self.params,
                                    T_world_first=seq_or_index.poses if anchored else None)
-            self.align_to = np.asarray(seq_or_index.poses, np.float64) if self.align else None
+            self.align_to = np.asarray(seq_or_index.poses, np.float64) if self.align is not None else None
             ids = frame_ids(self.frames, len(seq_or_index))
             self.last = int(ids[-1]) if len(ids) else None
             return self
@@ -90,7 +91,7 @@ class SlamPoses:
 
     def _aligned(self, fid: int, T) -> tuple:
         """After the final refinement: the rigid motion that fits the placed frames' final poses to ``align_to``'s
-        (:func:`~..evaluation.trajectory.align_trajectory`, SE(3) by :attr:`align_mode`), kept in
+        (:func:`~..evaluation.trajectory.align_trajectory`, SE(3) by :attr:`align`), kept in
         :attr:`alignment`; returns the last frame's pose and every other placed frame's fitted pose as revisions
         (each placed frame moves)."""
         from ..evaluation.trajectory import align_trajectory
@@ -99,7 +100,7 @@ class SlamPoses:
         if not committed:
             return T, []
         ids = sorted(committed)
-        _, R, t, _ = align_trajectory(np.stack([committed[i] for i in ids]), self.align_to[ids], self.align_mode)
+        _, R, t, _ = align_trajectory(np.stack([committed[i] for i in ids]), self.align_to[ids], self.align)
         self.alignment = np.eye(4)
         self.alignment[:3, :3], self.alignment[:3, 3] = R, t
         moved = {i: self.alignment @ committed[i] for i in ids}
@@ -167,7 +168,7 @@ def run_map_slam(cfg: MapConfig, overwrite: bool = False, progress: bool = True,
     if cfg.heading_prior:  # --heading-prior
         params = dataclasses.replace(params or SlamParams(), heading_prior=True)
     source = SlamPoses(params, first_pose=cfg.first_pose, frames=cfg.frames,
-                       align=cfg.poses_align if cfg.poses_align in RIGID and cfg.first_pose is None else False)
+                       align=cfg.poses_align if cfg.poses_align in RIGID and cfg.first_pose is None else None)
     source.on_loops = getattr(observer, "loops", None)
     summary = run_map(cfg, overwrite=overwrite, progress=progress, pose_source=source, observer=observer)
     summary["slam"] = _write_slam_outputs(
