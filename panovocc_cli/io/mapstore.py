@@ -740,10 +740,13 @@ def arrays_record(z: Mapping[str, np.ndarray]) -> DeltaRecord:
             gaps = np.concatenate([np.asarray(z[f"{pre}keys_first"], np.int64).reshape(-1), gaps])
         keys = np.cumsum(gaps)
         parts.append((keys, _decode_channels(z, pre, len(keys))))
-    T = np.asarray(z["T_world_cam"], np.float64)
+    # The pose and the observation are copies: the arrays of a decoded payload are views of its whole body (about
+    # 1.2 MB at 512x256), which a kept pose (a resumed run's replay, 128 bytes a frame) or a kept observation (a
+    # RAM store) would otherwise hold alive, one body a frame.
+    T = np.array(z["T_world_cam"], np.float64)
     if T.shape != (4, 4):
         raise ValueError(f"delta pose has shape {T.shape}, expected (4, 4)")
-    obs = {k[4:]: np.asarray(v) for k, v in z.items() if k.startswith("obs_")}
+    obs = {k[4:]: np.array(v) for k, v in z.items() if k.startswith("obs_")}
     return DeltaRecord(parts, T, obs or None)
 
 
