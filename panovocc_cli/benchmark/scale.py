@@ -1,7 +1,7 @@
 """``make bench-scale``: the long-term memory at building scale, end to end, as a user runs the commands.
 
     python -m panovocc_cli.benchmark.scale work/bench-scale [--scene building|house] [--width 512]
-                                           [--frames N] [--revise 1000] [--seed 0]
+                                           [--frames N] [--revise 1000] [--seed 0] [--segmenter SPEC]
 
 Each stage is a ``panovocc`` command in its own process (start to files written): ``synth`` (the building,
 or a house with ``--scene house``), ``render``, ``gt``, ``map --frame-times``, ``eval``, and ``revise`` of
@@ -27,6 +27,11 @@ a pose file that moves ``--revise`` frames (the tail of the run, as a late loop 
   frame read to the last record written, as ``revise`` prints them (what the same loop closure costs inside a
   run, which has the map loaded and exports it once at its end);
 * IoU / mIoU of the map against the scene's mesh ground truth.
+
+``--segmenter SPEC`` maps with that segmenter (``map --segmenter``; default: the simulated one, whose
+perception costs a few ms a frame): e.g. ``clip:FOLDER`` to measure what a revision saves where perception
+is a network's (a revision never runs the segmenter; with a randomly initialised network the timings are a
+trained one's and the labels are noise).
 """
 
 from __future__ import annotations
@@ -155,7 +160,7 @@ def moved_tail(poses: np.ndarray, k: int) -> np.ndarray:
 
 
 def run(work: Path, scene: str = "building", width: int = 512, frames: int | None = None, revise: int = 1000,
-        seed: int = 0) -> dict:
+        seed: int = 0, segmenter: str | None = None) -> dict:
     from ..io.poses import read_poses, write_poses
 
     work.mkdir(parents=True, exist_ok=True)
@@ -173,7 +178,9 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
     if not gt.is_file():
         timed(panovocc_command("gt", str(sc), str(gt), "--overwrite"), logs / "gt.log")
     times = work / "frames.csv"
-    mrun = timed(panovocc_command("map", str(seq), str(mp), "--frame-times", str(times), "--overwrite"), logs / "map.log")
+    seg = () if segmenter is None else ("--segmenter", segmenter)
+    mrun = timed(panovocc_command("map", str(seq), str(mp), "--frame-times", str(times), "--overwrite", *seg),
+                 logs / "map.log")
     fc = frame_costs(times)
     mem = memory_figures(mp)
     ev = json.loads(subprocess.run(panovocc_command("eval", str(mp / "prediction.npz"), str(gt), "--classes", "eval12",
@@ -186,7 +193,8 @@ def run(work: Path, scene: str = "building", width: int = 512, frames: int | Non
     integrate_s = float(fc["dt"][len(poses) - k:].sum())
     integrate_cpu_s = float(fc["cpu"][len(poses) - k:].sum())
     peak = mrun["peak_rss_bytes"]
-    out = {"scene": scene, "width": width, "seed": seed, "frames": fc["frames"], **mem,
+    out = {"scene": scene, "width": width, "seed": seed, "segmenter": segmenter or "simulated", "frames": fc["frames"],
+           **mem,
            "map_wall_s": mrun["wall_s"], "peak_rss_bytes": peak, "startup_rss_bytes": fc["startup_rss_bytes"],
            "peak_above_startup_over_memory": (peak - fc["startup_rss_bytes"]) / mem["memory_bytes"],
            "pipeline_rss_bytes": fc["pipeline_rss_bytes"],
@@ -211,7 +219,8 @@ def table_rows(r: dict) -> list:
     sem = r["semantic_bytes_per_row"]
     ck = r["checkpoint_ms"]
     return [
-        ("scene", f"{r['scene']} (seed {r['seed']}), {r['width']}x{r['width'] // 2}"),
+        ("scene", f"{r['scene']} (seed {r['seed']}), {r['width']}x{r['width'] // 2}"
+                  + ("" if r.get("segmenter", "simulated") == "simulated" else f", segmenter {r['segmenter']}")),
         ("frames", f"{r['frames']:,}"),
         ("occupied / non-zero / allocated voxels", f"{r['occupied_voxels']:,} / {r['nonzero_voxels']:,} / "
                                                      f"{r['allocated_voxels']:,}"),
@@ -264,8 +273,9 @@ def main(argv=None) -> None:
     ap.add_argument("--frames", type=int, default=None, help="trajectory poses (default: the scene's)")
     ap.add_argument("--revise", type=int, default=1000, help="frames moved and revised")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--segmenter", default=None, help="map --segmenter SPEC (default: the simulated segmenter)")
     a = ap.parse_args(argv)
-    r = run(a.work, a.scene, a.width, a.frames, a.revise, a.seed)
+    r = run(a.work, a.scene, a.width, a.frames, a.revise, a.seed, a.segmenter)
     for k, v in table_rows(r):
         print(f"{k:48s} {v}")
     print(f"tables: {a.work / 'scale.md'}, scale.csv, scale.json (load average {r['load'][0]:.1f})")
