@@ -14,6 +14,11 @@ MODES, joined by any separator (e.g. ``gate+mallinfo``):
   decoding still does);
 * ``gatewriter`` (with ``gate``): the writer thread holds the same lock while it encodes a record's arrays;
 * ``zreuse``: one Zstandard compressor a thread, reused for every record (the same record bytes);
+* ``readonly``: the prefetching thread only reads and decodes the frame's images; the segmenter and the
+  observation run on the mapping thread, before the frame's delta (docs/mapping.md, "The house's peak, ninth
+  pass");
+* ``syncencode``: a record is encoded and compressed on the mapping thread, and the writer thread only appends
+  its bytes (the previous frame's record, not its delta, is what waits beside the next frame);
 * ``mallinfo``: after frames 0, 1, 2, 10, 100, 600 and 1,199, print glibc's main heap (``mallinfo2``: its
   size, the bytes in use and free) and the resident memory, MiB;
 * ``trim`` / ``trimN``: glibc's ``malloc_trim(0)`` after every frame / every N-th frame on the mapping thread
@@ -89,6 +94,47 @@ def _gate(writer: bool):
         rpu.DeltaStore._append_put = append_put
 
 
+def _readonly():
+    prefetched = pl.prefetched
+
+    class Source:  # what pl.observed gives the loop here: the frame source and the mapper, unread
+        def __init__(self, frames, mapper):
+            self.frames, self.mapper = frames, mapper
+
+    def segmented(source, ids):
+        frames = source.frames
+        for i, frame in prefetched(lambda i: frames.seq.frame(i), ids):
+            observation = None
+            if frames.segmenter is not None:
+                s = frames.stride
+                rgb = frame.rgb[::s, ::s] if s > 1 else frame.rgb
+                frame.logits = frames.segmenter.logits(rgb, frames.vocab, frame_id=i)
+                observation = source.mapper.observe(frame)
+                frame = dataclasses.replace(frame, logits=None, features=None)
+            yield i, (frame, observation)
+
+    pl.observed = Source
+    pl.prefetched = segmented
+
+
+def _syncencode():
+    submit, append = rpu.DeltaStore._submit, rpu.DeltaStore._append_put
+
+    def encoded_first(self, fn, *args):
+        if getattr(fn, "__func__", None) is appended:  # the record made here; the writer appends its bytes
+            fid, held, T = args
+            held[0] = rpu.encode_record(held[0], T)
+        return submit(self, fn, *args)
+
+    def appended(self, fid, held, T):
+        if isinstance(held[0], bytes):
+            self._locs[fid] = self._log.append(ms.PUT, fid, held[0])
+        else:
+            append(self, fid, held, T)
+
+    rpu.DeltaStore._submit, rpu.DeltaStore._append_put = encoded_first, appended
+
+
 def _zreuse():
     local = threading.local()
 
@@ -146,13 +192,18 @@ def _trim(every: int):
     mp.Mapper.integrate = trimmed
 
 
-def main() -> None:
+def apply() -> None:
+    """Patch the toolkit for the modes of ``PK_MODE`` (``scripts/map_rss_phases.py`` calls it too)."""
     if "noreader" in MODE:
         _noreader()
     if "syncwriter" in MODE:
         _syncwriter()
     if "gate" in MODE:
         _gate("gatewriter" in MODE)
+    if "readonly" in MODE:
+        _readonly()
+    if "syncencode" in MODE:
+        _syncencode()
     if "zreuse" in MODE:
         _zreuse()
     if "mallinfo" in MODE:
@@ -160,6 +211,10 @@ def main() -> None:
     m = re.search(r"trim(\d*)", MODE)
     if m:
         _trim(int(m.group(1) or 1))
+
+
+def main() -> None:
+    apply()
     from panovocc_cli.cli import main as cli
 
     sys.argv[0] = "panovocc"

@@ -2,6 +2,7 @@
 "Memory layout"): runs ``panovocc map ARGS`` in this process and writes one JSON object to OUT.
 
     python scripts/map_rss_phases.py OUT.json -- map SEQ MAP --checkpoint-every 0 [--frames 0:300]
+    PK_MODE=noreader+syncwriter python scripts/map_rss_phases.py ...   # a variant of scripts/map_overlap_variants.py
 
 Per frame: resident memory (``/proc/self/status`` VmRSS, MiB) after the frame, the memory held
 (``VoxelMemory.nbytes``), the frame box's voxels (``psvf.update.frame_box``) and the delta's bytes (keys and
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import os
 import re
 import sys
 import threading
@@ -82,6 +84,11 @@ def main() -> None:
     from panovocc_cli.runtime import setup
 
     setup()  # before the sampler thread starts: its malloc arena then follows the command's settings
+    if os.environ.get("PK_MODE"):  # a variant of the frame pipeline (scripts/map_overlap_variants.py)
+        sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+        import map_overlap_variants
+
+        map_overlap_variants.apply()
     threading.Thread(target=sampler, daemon=True).start()
     from panovocc_cli.cli import main as cli_main
     from panovocc_cli.mapping import mapper as mapper_mod

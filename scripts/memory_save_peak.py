@@ -3,6 +3,7 @@ layout", "On the building").
 
     python scripts/memory_save_peak.py MAP OUT            # streamed, a key range at a time (what save does)
     python scripts/memory_save_peak.py MAP OUT --whole    # from whole arrays (to_arrays, the former save)
+    python scripts/memory_save_peak.py MAP OUT --chunk 65536   # streamed, 2^16 allocated voxels a chunk
 
 Loads MAP's ``memory.npz`` into a :class:`~panovocc_cli.mapping.memory.VoxelMemory`, hands the freed heap
 back, writes a one-voxel memory's file (the compiled kernels load once), resets the process's peak resident memory (``/proc/self/clear_refs``), writes ``OUT/memory.npz``
@@ -25,7 +26,13 @@ def main() -> None:
     ap.add_argument("map", type=Path)
     ap.add_argument("out", type=Path)
     ap.add_argument("--whole", action="store_true", help="write from whole arrays (VoxelMemory.to_arrays)")
+    ap.add_argument("--chunk", type=int, default=None,
+                    help="allocated voxels a chunk of the stream (memory.SAVE_CHUNK; the same file whatever it is)")
     args = ap.parse_args()
+    if args.chunk is not None:
+        import panovocc_cli.mapping.memory as memory_module
+
+        memory_module.SAVE_CHUNK = args.chunk
 
     from panovocc_cli.io import mapstore
     from panovocc_cli.mapping.memory import Delta, VoxelMemory
