@@ -54,6 +54,7 @@ COMPACT_LIVE_SHARE = 0.5
 EVERY = "every"  # DeltaStore.commit(compact=EVERY): rewrite every shard that holds a dead record
 FROZEN = "frozen"  # ReversibleMemory.save(background=FROZEN): streamed on the writer thread, the memory left as it is
 LEGACY = -1  # shard number of a frame whose delta is a file of its own (maps made before the log)
+REPLAY_AHEAD = 2  # records a replay decodes ahead of its adds (each a frame's decoded delta, a few MB at 512x256)
 
 
 class _BackgroundWriter:
@@ -670,19 +671,40 @@ class ReversibleMemory:
         return rm
 
     def _replay(self, records) -> None:
-        """Apply committed log records (after the snapshot) to the memory and the store's index."""
+        """Apply committed log records (after the snapshot) to the memory and the store's index, in log order.
+        The PUT records' payloads are read and decoded on a second thread, up to :data:`REPLAY_AHEAD` records
+        ahead of the adds (a resumed run's replay of every record: the decoding and the add each about half of
+        it); a record that cannot be read is refused when its turn comes, as in a plain loop."""
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+
         st = self.store
-        for kind, fid, loc in records:
-            if fid in st.poses:
-                self.memory.add(st._read(fid, st._locs[fid]), -1)
-            if kind == mapstore.PUT:
-                path = mapstore.shard_path(st.folder, loc[0])
-                parts, T = mapstore.decode_delta(st._log.read(loc), path)
-                st.poses[fid], st._locs[fid] = T, loc
-                self.memory.add(FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts)), +1)
-            else:
-                st.poses.pop(fid, None)
-                st._locs.pop(fid, None)
+        records = list(records)
+
+        def decoded(loc):
+            return mapstore.decode_delta(st._log.read(loc), mapstore.shard_path(st.folder, loc[0]))
+
+        puts = iter([loc for kind, _, loc in records if kind == mapstore.PUT])
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            ahead = deque(pool.submit(decoded, loc) for _, loc in zip(range(REPLAY_AHEAD), puts))
+            try:
+                for kind, fid, loc in records:
+                    if fid in st.poses:
+                        self.memory.add(st._read(fid, st._locs[fid]), -1)
+                    if kind == mapstore.PUT:
+                        parts, T = ahead.popleft().result()
+                        nxt = next(puts, None)
+                        if nxt is not None:
+                            ahead.append(pool.submit(decoded, nxt))
+                        st.poses[fid], st._locs[fid] = T, loc
+                        self.memory.add(FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts)), +1)
+                        del parts
+                    else:
+                        st.poses.pop(fid, None)
+                        st._locs.pop(fid, None)
+            finally:
+                for f in ahead:
+                    f.cancel()
 
     def close(self) -> None:
         try:

@@ -509,6 +509,44 @@ def _commits(out) -> list[tuple[int, int]]:
     return [struct.unpack("<4sqqI", data[i:i + 24])[1:3] for i in range(0, len(data), 24)]
 
 
+@pytest.mark.parametrize("damaged", [0, 3])
+def test_resume_refuses_a_damaged_record_wherever_the_replay_meets_it(room_seq, tmp_path, damaged):
+    """A resumed run rebuilds its memory from the log, decoding the records ahead of the adds on a second thread
+    (``rpu.REPLAY_AHEAD``): a record whose payload cannot be decoded (its checksum made to match, so the log's
+    own check, which rolls a torn tail back, passes it) is refused with one line naming its shard, whether it
+    is the first record or one decoded ahead while earlier ones were added; the folder is left as it was.
+    Mended, the same replay gives the clean run's bytes."""
+    import zlib
+
+    from panovocc_cli.io import mapstore
+    from panovocc_cli.mapping import rpu
+
+    assert rpu.REPLAY_AHEAD < 3  # frame 3's record is decoded ahead of an add
+    full = tmp_path / "full"
+    run_map(_cfg(room_seq, full), progress=False)
+    part = tmp_path / "part"
+    run_map(_cfg(room_seq, part, checkpoint_every=1), progress=False, stop_after=4)  # killed: no memory.npz
+    puts = [loc for kind, _, loc in mapstore.DeltaLog(part).records if kind == mapstore.PUT]
+    assert len(puts) == 4 and not (part / "memory.npz").exists()
+    shard, offset, length = puts[damaged]
+    path = mapstore.shard_path(part, shard)
+    original = path.read_bytes()
+    data = bytearray(original)
+    data[offset:offset + length] = b"\x28\xb5\x2f\xfd" + bytes(length - 4)  # a Zstandard magic, then nothing
+    head = list(mapstore._HEADER.unpack_from(data, offset - mapstore._HEADER.size))
+    head[4] = zlib.crc32(bytes(data[offset:offset + length]))
+    mapstore._HEADER.pack_into(data, offset - mapstore._HEADER.size, *head)
+    path.write_bytes(bytes(data))
+    before = {p.name: p.read_bytes() for p in sorted((part / "deltas").iterdir())}
+    with pytest.raises(PanovoccError, match="cannot read delta") as e:
+        run_map(resume_out=part, progress=False)
+    assert path.name in str(e.value) and len(str(e.value).splitlines()) == 1
+    assert {p.name: p.read_bytes() for p in sorted((part / "deltas").iterdir())} == before
+    path.write_bytes(original)
+    run_map(resume_out=part, progress=False)
+    assert _bytes(part) == _bytes(full)
+
+
 def test_resume_over_a_truncated_delta_log_rolls_back_and_is_exact(room_seq, tmp_path):
     """A delta log cut short below its last commit(s) (a truncated shard) is rolled back by --resume to the
     last commit the log still reaches, as a killed run's tail is, and the frames after it are mapped again:
