@@ -685,26 +685,25 @@ class ReversibleMemory:
             return mapstore.decode_delta(st._log.read(loc), mapstore.shard_path(st.folder, loc[0]))
 
         puts = iter([loc for kind, _, loc in records if kind == mapstore.PUT])
-        with ThreadPoolExecutor(max_workers=1) as pool:
+        pool = ThreadPoolExecutor(max_workers=1)
+        try:
             ahead = deque(pool.submit(decoded, loc) for _, loc in zip(range(REPLAY_AHEAD), puts))
-            try:
-                for kind, fid, loc in records:
-                    if fid in st.poses:
-                        self.memory.add(st._read(fid, st._locs[fid]), -1)
-                    if kind == mapstore.PUT:
-                        parts, T = ahead.popleft().result()
-                        nxt = next(puts, None)
-                        if nxt is not None:
-                            ahead.append(pool.submit(decoded, nxt))
-                        st.poses[fid], st._locs[fid] = T, loc
-                        self.memory.add(FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts)), +1)
-                        del parts
-                    else:
-                        st.poses.pop(fid, None)
-                        st._locs.pop(fid, None)
-            finally:
-                for f in ahead:
-                    f.cancel()
+            for kind, fid, loc in records:
+                if fid in st.poses:
+                    self.memory.add(st._read(fid, st._locs[fid]), -1)
+                if kind == mapstore.PUT:
+                    parts, T = ahead.popleft().result()
+                    nxt = next(puts, None)
+                    if nxt is not None:
+                        ahead.append(pool.submit(decoded, nxt))
+                    st.poses[fid], st._locs[fid] = T, loc
+                    self.memory.add(FrameDelta(tuple(Delta(keys, ch) for keys, ch in parts)), +1)
+                    del parts  # freed before the next record's wait, not beside it
+                else:
+                    st.poses.pop(fid, None)
+                    st._locs.pop(fid, None)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)  # a refused record: those queued after it are not decoded
 
     def close(self) -> None:
         try:
