@@ -60,19 +60,24 @@ def _syncwriter():
     rpu.DeltaStore.put = synced
 
 
+def _segmented(frames, mapper, frame, i):
+    """Frame ``i`` as read, segmented and observed as ``pipeline.observed`` gives it: (frame without its logits,
+    its observation)."""
+    if frames.segmenter is None:
+        return frame, None
+    s = frames.stride
+    rgb = frame.rgb[::s, ::s] if s > 1 else frame.rgb
+    frame.logits = frames.segmenter.logits(rgb, frames.vocab, frame_id=i)
+    observation = mapper.observe(frame)
+    return dataclasses.replace(frame, logits=None, features=None), observation
+
+
 def _gate(writer: bool):
     def observed(frames, mapper):
         def read(i):
             frame = frames.seq.frame(i)
-            if frames.segmenter is None:
-                return frame, None
             with GATE:
-                s = frames.stride
-                rgb = frame.rgb[::s, ::s] if s > 1 else frame.rgb
-                frame.logits = frames.segmenter.logits(rgb, frames.vocab, frame_id=i)
-                observation = mapper.observe(frame)
-                frame = dataclasses.replace(frame, logits=None, features=None)
-            return frame, observation
+                return _segmented(frames, mapper, frame, i)
 
         return read
 
@@ -104,14 +109,7 @@ def _readonly():
     def segmented(source, ids):
         frames = source.frames
         for i, frame in prefetched(lambda i: frames.seq.frame(i), ids):
-            observation = None
-            if frames.segmenter is not None:
-                s = frames.stride
-                rgb = frame.rgb[::s, ::s] if s > 1 else frame.rgb
-                frame.logits = frames.segmenter.logits(rgb, frames.vocab, frame_id=i)
-                observation = source.mapper.observe(frame)
-                frame = dataclasses.replace(frame, logits=None, features=None)
-            yield i, (frame, observation)
+            yield i, _segmented(frames, source.mapper, frame, i)
 
     pl.observed = Source
     pl.prefetched = segmented

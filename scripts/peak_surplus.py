@@ -4,19 +4,15 @@ user runs it and prints one JSON object.
 
     python scripts/peak_surplus.py SEQ OUT [map options, e.g. --frames 0:300]
 
-The peak is the child's ``ru_maxrss``, the start-up its resident memory after the first frame (``--frame-times``,
-as ``make bench-scale`` reads it), the memory held ``VoxelMemory.nbytes`` of the map's ``memory.npz``
-(``benchmark.scale.memory_figures``); MiB. ``surplus`` = peak - start-up - held: what the run holds above its
+The peak is the child's ``ru_maxrss`` and the start-up its resident memory after the first frame, both as
+``make bench-scale`` reads them (``benchmark.scale.timed``, ``frame_costs``); the memory held is
+``VoxelMemory.nbytes`` of the map's ``memory.npz`` (``benchmark.scale.memory_figures``); MiB. ``surplus`` = peak - start-up - held: what the run holds above its
 start-up besides the memory itself. The ratio the issue bounds is ``1 + surplus / held``.
 """
 
 from __future__ import annotations
 
-import csv
 import json
-import os
-import resource
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -27,16 +23,14 @@ def main() -> None:
         raise SystemExit(__doc__.splitlines()[4].strip())
     seq, out, extra = sys.argv[1], Path(sys.argv[2]), sys.argv[3:]
     from panovocc_cli.benchmark import panovocc_command
-    from panovocc_cli.benchmark.scale import memory_figures
+    from panovocc_cli.benchmark.scale import frame_costs, memory_figures, timed
 
     with tempfile.TemporaryDirectory() as tmp:
         times = Path(tmp) / "frames.csv"
-        subprocess.run(panovocc_command("map", seq, str(out), "--quiet", "--checkpoint-every", "0",
-                                        "--frame-times", str(times), *extra), check=True,
-                       stdout=subprocess.DEVNULL, env=os.environ.copy())
-        with open(times) as f:
-            start = float(next(csv.DictReader(f))["rss_mb"])
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        run = timed(panovocc_command("map", seq, out, "--quiet", "--checkpoint-every", "0", "--frame-times", times,
+                                     *extra), Path(tmp) / "map.log")
+        start = frame_costs(times)["startup_rss_bytes"] / 2 ** 20
+    peak = run["peak_rss_bytes"] / 2 ** 20
     held = memory_figures(out)["memory_bytes"] / 2 ** 20
     print(json.dumps({"map": str(out), "options": extra, "held_mib": round(held, 2), "start_mib": round(start, 1),
                       "peak_mib": round(peak, 1), "above_start_mib": round(peak - start, 1),
