@@ -6,8 +6,9 @@ user runs it and prints one JSON object.
 
 The peak is the child's ``ru_maxrss`` and the start-up its resident memory after the first frame, both as
 ``make bench-scale`` reads them (``benchmark.scale.timed``, ``frame_costs``); the memory held is
-``VoxelMemory.nbytes`` of the map's ``memory.npz`` (``benchmark.scale.memory_figures``); MiB. ``surplus`` = peak - start-up - held: what the run holds above its
-start-up besides the memory itself. The ratio the issue bounds is ``1 + surplus / held``.
+``VoxelMemory.nbytes`` of the map's ``memory.npz`` (``benchmark.scale.memory_figures``); MiB. ``surplus`` = peak
+- start-up - held: what the run holds above its start-up besides the memory itself. The ratio the issue bounds
+is ``1 + surplus / held``.
 """
 
 from __future__ import annotations
