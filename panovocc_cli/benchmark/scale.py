@@ -220,7 +220,7 @@ def table_rows(r: dict) -> list:
     ck = r["checkpoint_ms"]
     return [
         ("scene", f"{r['scene']} (seed {r['seed']}), {r['width']}x{r['width'] // 2}"
-                  + ("" if r.get("segmenter", "simulated") == "simulated" else f", segmenter {r['segmenter']}")),
+                  + ("" if r["segmenter"] == "simulated" else f", segmenter {r['segmenter']}")),
         ("frames", f"{r['frames']:,}"),
         ("occupied / non-zero / allocated voxels", f"{r['occupied_voxels']:,} / {r['nonzero_voxels']:,} / "
                                                      f"{r['allocated_voxels']:,}"),
